@@ -1,0 +1,30 @@
+"""ament_python package of the adaptive notch filter node."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "notch_filter_node"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml", "README.md"]),
+        ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="sysid maintainers",
+    maintainer_email="sysid-maintainers@example.com",
+    description="Adaptive notch filter bank following identified structural modes.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+        ],
+    },
+)

@@ -1,0 +1,1 @@
+"""Pure numerics of the deterministic-stochastic realization algorithm (no rclpy)."""
