@@ -11,7 +11,9 @@ REPO = Path(__file__).resolve().parents[1]
 WS = REPO / "ros2_ws"
 
 
-def _run(cmd: list[str], env: dict | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+def _run(
+    cmd: list[str], env: dict | None = None, timeout: float = 120
+) -> subprocess.CompletedProcess:
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=full_env)
 
@@ -57,7 +59,10 @@ def test_setup_without_package_index_fails_with_one_line(tmp_path):
 def test_run_unknown_package_and_executable_one_line():
     res = _run([str(WS / "run"), "no_such_pkg", "x"])
     assert res.returncode != 0
-    assert res.stderr.strip() == "run: error: package 'no_such_pkg' not found (built? run ros2_ws/setup)"
+    assert (
+        res.stderr.strip()
+        == "run: error: package 'no_such_pkg' not found (built? run ros2_ws/setup)"
+    )
     res = _run([str(WS / "run"), "sysid_msgs", "no_such_exe"])
     assert res.returncode != 0
     assert len(res.stderr.strip().splitlines()) == 1

@@ -22,7 +22,11 @@ def stamp(pkg_dir: Path, extra: str = "") -> str:
         if not path.is_file() or "__pycache__" in rel.parts or path.suffix == ".pyc":
             continue
         h.update(str(rel).encode())
-        if not python_pkg or rel.name in METADATA or rel.parts[0] in {"launch", "config", "resource"}:
+        if (
+            not python_pkg
+            or rel.name in METADATA
+            or rel.parts[0] in {"launch", "config", "resource"}
+        ):
             h.update(path.read_bytes())
     return h.hexdigest()[:16]
 

@@ -18,11 +18,14 @@ def find(package: str, executable: str) -> Path:
     try:
         prefix = Path(get_package_prefix(package))
     except PackageNotFoundError:
-        raise SystemExit(f"run: error: package '{package}' not found (built? run ros2_ws/setup)")
+        msg = f"run: error: package '{package}' not found (built? run ros2_ws/setup)"
+        raise SystemExit(msg) from None
     lib = prefix / "lib" / package
     path = lib / executable
     if not (path.is_file() and os.access(path, os.X_OK)):
-        found = sorted(p.name for p in lib.iterdir() if os.access(p, os.X_OK)) if lib.is_dir() else []
+        found = (
+            sorted(p.name for p in lib.iterdir() if os.access(p, os.X_OK)) if lib.is_dir() else []
+        )
         raise SystemExit(
             f"run: error: no executable '{executable}' in package '{package}'"
             f" (available: {', '.join(found) or 'none'})"

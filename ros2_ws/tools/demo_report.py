@@ -1,0 +1,240 @@
+"""Analysis and HTML report of a demo run (recorded /modal_estimate, /notch_bank, signals)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from scipy import signal as sps
+from sysid_node.bag_io import read_signals, typestore
+
+MODE_STATUS = {0: "tentative", 1: "tracked", 2: "lost"}
+NOTCH_STATE = {0: "tracking", 1: "holding", 2: "parked", 3: "disabled"}
+
+
+@dataclass
+class DemoResult:
+    """What the demo measured, in arrays ready for the table and the plots."""
+
+    bag: Path
+    t0: float
+    estimates: list[dict] = field(default_factory=list)  # t, modes[(id, status, f, fstd, z)]
+    banks: list[dict] = field(default_factory=list)  # t, notches[(mode_id, state, fc, bw, depth)]
+    t_in: np.ndarray | None = None
+    y_in: np.ndarray | None = None
+    t_out: np.ndarray | None = None
+    y_out: np.ndarray | None = None
+    truth: dict | None = None
+
+    def table(self, step: float = 2.0) -> str:
+        """Modes and notch centres every ``step`` seconds of data time."""
+        lines = [f"{'t [s]':>6}  {'modes: id f[Hz] zeta[%] (status)':<58}  notch centres [Hz]"]
+        if not self.estimates:
+            return "\n".join([*lines, "  (no /modal_estimate received)"])
+        t_end = self.estimates[-1]["t"]
+        t = step
+        while t <= t_end + 1e-9:
+            est = _last_before(self.estimates, t)
+            bank = _last_before(self.banks, t)
+            modes = " ".join(
+                f"#{m[0]} {m[2]:.2f} {100 * m[4]:.1f}"
+                + ("" if m[1] == 1 else f"({MODE_STATUS[m[1]][0]})")
+                for m in (est["modes"] if est else [])
+                if m[1] != 2
+            )
+            notches = " ".join(
+                f"{n[2]:.2f}" + ("" if n[1] == 0 else f"({NOTCH_STATE[n[1]][0]})")
+                for n in (bank["notches"] if bank else [])
+                if n[1] != 3
+            )
+            lines.append(f"{t:6.1f}  {modes or '-':<58}  {notches or '-'}")
+            t += step
+        return "\n".join(lines)
+
+    def attenuation(self) -> list[dict]:
+        """Spectral attenuation through the bank at each final notch centre (second half)."""
+        if self.y_in is None or self.y_out is None or not self.banks:
+            return []
+        fs = 1.0 / np.median(np.diff(self.t_in))
+        half = self.t_in[-1] - 0.5 * (self.t_in[-1] - self.t_in[0])
+        a = self.y_in[self.t_in >= half, 0]
+        b = self.y_out[self.t_out >= half, 0]
+        n = min(a.size, b.size)
+        f, pa = sps.welch(a[:n], fs=fs, nperseg=min(1024, n))
+        _, pb = sps.welch(b[:n], fs=fs, nperseg=min(1024, n))
+        out = []
+        for nt in self.banks[-1]["notches"]:
+            k = int(np.argmin(np.abs(f - nt[2])))
+            out.append({"centre_hz": nt[2], "attenuation_db": float(10 * np.log10(pa[k] / pb[k]))})
+        return out
+
+    def summary(self) -> dict:
+        last = self.estimates[-1] if self.estimates else None
+        return {
+            "bag": str(self.bag),
+            "estimates_received": len(self.estimates),
+            "notch_bank_messages": len(self.banks),
+            "final_modes": [
+                {
+                    "id": m[0],
+                    "status": MODE_STATUS[m[1]],
+                    "frequency_hz": m[2],
+                    "frequency_std_hz": m[3],
+                    "damping_ratio": m[4],
+                }
+                for m in (last["modes"] if last else [])
+            ],
+            "final_notches": [
+                {
+                    "mode_id": n[0],
+                    "state": NOTCH_STATE[n[1]],
+                    "centre_hz": n[2],
+                    "bandwidth_hz": n[3],
+                    "depth_db": n[4],
+                }
+                for n in (self.banks[-1]["notches"] if self.banks else [])
+            ],
+            "attenuation": self.attenuation(),
+        }
+
+
+def _last_before(records: list[dict], t: float) -> dict | None:
+    best = None
+    for r in records:
+        if r["t"] <= t:
+            best = r
+        else:
+            break
+    return best
+
+
+def _stamp(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def analyse(bag: Path, recorded: Path) -> DemoResult:
+    """Read the input bag and the recording of a demo run."""
+    sig_in = read_signals(bag, ["/vibration"])["/vibration"]
+    res = DemoResult(
+        bag=bag, t0=float(sig_in.t[0]), t_in=sig_in.t - sig_in.t[0], y_in=sig_in.values
+    )
+    truth = bag.parent / f"{bag.name}.truth.json"
+    if truth.exists():
+        res.truth = json.loads(truth.read_text())
+    with AnyReader([recorded], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic in ("/modal_estimate", "/notch_bank")]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            t = _stamp(msg.header) - res.t0
+            if conn.topic == "/modal_estimate":
+                modes = [
+                    (m.id, m.status, m.frequency, m.frequency_std, m.damping_ratio)
+                    for m in msg.modes
+                ]
+                res.estimates.append({"t": t, "modes": modes, "converged": msg.converged})
+            else:
+                notches = [
+                    (n.mode_id, n.state, n.center_frequency, n.bandwidth, n.depth)
+                    for n in msg.notches
+                ]
+                res.banks.append({"t": t, "notches": notches, "fallback": msg.fallback_active})
+    res.estimates.sort(key=lambda r: r["t"])
+    res.banks.sort(key=lambda r: r["t"])
+    out = read_signals(recorded, ["/vibration_filtered"]).get("/vibration_filtered")
+    if out is not None:
+        res.t_out, res.y_out = out.t - res.t0, out.values
+    return res
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def write_report(res: DemoResult, path: Path) -> Path:
+    """HTML report with the figures embedded (one self-contained file)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figs = []
+    fig, (ax_f, ax_z) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    ids = sorted({m[0] for e in res.estimates for m in e["modes"]})
+    for mid in ids:
+        pts = [
+            (e["t"], m[2], m[3], m[4])
+            for e in res.estimates
+            for m in e["modes"]
+            if m[0] == mid and m[1] != 2
+        ]
+        if not pts:
+            continue
+        t, f, fs_, z = (np.array(v) for v in zip(*pts, strict=True))
+        line = ax_f.plot(t, f, ".", ms=3, label=f"mode #{mid}")[0]
+        ok = np.isfinite(fs_)
+        ax_f.fill_between(
+            t[ok], (f - 2 * fs_)[ok], (f + 2 * fs_)[ok], color=line.get_color(), alpha=0.2
+        )
+        ax_z.plot(t, 100 * z, ".", ms=3, color=line.get_color())
+    ax_f.set_ylabel("frequency [Hz]")
+    ax_f.set_title("Identified modes against time (2-sigma band), cf. the paper's Fig. 2")
+    ax_f.legend(loc="upper left", fontsize=8, ncol=3)
+    ax_z.set_ylabel("damping ratio [%]")
+    ax_z.set_xlabel("time [s]")
+    figs.append(("Modes tracked against time", _png(fig)))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for e in res.estimates:
+        tracked = [m[2] for m in e["modes"] if m[1] == 1]
+        ax.plot([e["t"]] * len(tracked), tracked, ".", color="0.6", ms=3)
+    for j in range(max((len(b["notches"]) for b in res.banks), default=0)):
+        pts = [(b["t"], b["notches"][j][2]) for b in res.banks if len(b["notches"]) > j]
+        ax.step(*zip(*pts, strict=True), where="post", lw=1.5, label=f"notch {j}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("frequency [Hz]")
+    ax.set_title("Notch centres (lines) over the tracked modes (grey)")
+    ax.legend(fontsize=8)
+    figs.append(("Notch centres over the estimated modes", _png(fig)))
+    plt.close(fig)
+
+    if res.y_out is not None and res.y_in is not None:
+        fs = 1.0 / np.median(np.diff(res.t_in))
+        half = res.t_in[-1] / 2
+        a, b = res.y_in[res.t_in >= half, 0], res.y_out[res.t_out >= half, 0]
+        n = min(a.size, b.size)
+        f, pa = sps.welch(a[:n], fs=fs, nperseg=min(1024, n))
+        _, pb = sps.welch(b[:n], fs=fs, nperseg=min(1024, n))
+        fig, ax = plt.subplots(figsize=(9, 4))
+        ax.semilogy(f, pa, label="before the notch bank (/vibration)")
+        ax.semilogy(f, pb, label="after (/vibration_filtered)")
+        ax.set_xlim(0, min(fs / 2, 15))
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("PSD [unit^2/Hz]")
+        ax.set_title("Spectrum before and after the notch bank (second half of the run)")
+        ax.legend()
+        figs.append(("Spectrum before and after", _png(fig)))
+        plt.close(fig)
+
+    body = "".join(
+        f"<h2>{html.escape(t)}</h2><img src='data:image/png;base64,{b}'/>" for t, b in figs
+    )
+    table = html.escape(res.table())
+    summ = html.escape(json.dumps(res.summary(), indent=2))
+    path.write_text(
+        "<!doctype html><html><head><meta charset='utf-8'><title>Adaptive notch demo</title>"
+        "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}img{max-width:100%}"
+        "pre{background:#f4f4f4;padding:8px;font-size:12px}</style></head><body>"
+        f"<h1>Adaptive notch demo: {html.escape(res.bag.name)}</h1>{body}"
+        f"<h2>Modes and notch centres over time</h2><pre>{table}</pre>"
+        f"<h2>Summary</h2><pre>{summ}</pre></body></html>"
+    )
+    return path
