@@ -1,0 +1,222 @@
+"""The sysid_node parameter table (pure, no rclpy).
+
+One :class:`ParamSpec` per parameter: name, type, default, description, range or choices and
+its kind. ``live`` parameters are applied without losing the estimate, ``structural`` ones reset
+the estimator (the caller logs a line), ``read_only`` ones can only be set at start-up.
+:func:`validate` checks a single value, :func:`validate_set` a whole set of values (cross
+checks such as ``freq_min < freq_max``); both return a reason string, empty when valid.
+
+Defaults serve a sensor nobody has configured for: the sample rate is measured from the stamps
+(``sample_rate: 0``), the band spans up to ``0.4 fs`` (``freq_max: 0``), and memory may be given as
+a time constant in seconds that is independent of the sample rate (``memory_time_constant``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+Kind = Literal["live", "structural", "read_only"]
+
+SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
+QOS_CHOICES = ("sensor_data", "reliable")
+RATE_POLICIES = ("resample", "reject")
+IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
+#: Default upper band edge as a fraction of the sample rate (0.4 fs = 80 % of Nyquist).
+NYQUIST_SAFE_FRACTION = 0.4
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter: its type, default, range (``lo``/``hi`` inclusive) and kind."""
+
+    name: str
+    type: type
+    default: Any
+    description: str
+    kind: Kind = "live"
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
+
+
+def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw: Any) -> ParamSpec:
+    return ParamSpec(name, typ, default, desc, kind, **kw)
+
+
+PARAMS: tuple[ParamSpec, ...] = (
+    # -- sampling and channel layout (structural) --
+    _p("sample_rate", float, 0.0,
+       "Sample rate of the estimator [Hz]; 0 = measure it from the header stamps",
+       "structural", lo=0.0, hi=100000.0, unit="Hz"),
+    _p("rate_mismatch", str, "resample",
+       "What to do with a stream whose measured rate differs from sample_rate: "
+       "'resample' (linear interpolation onto the sample grid) or 'reject' (drop it)",
+       "structural", choices=RATE_POLICIES),
+    _p("output_only", bool, False,
+       "true = ignore the excitation topic (stochastic, output-only identification); false = use "
+       "the excitation when it is published (output-only while it is absent)", "structural"),
+    _p("output_channels", int, 0,
+       "Expected number of output channels; 0 = take it from the first message", "structural",
+       lo=0, hi=64),
+    _p("input_channels", int, 0,
+       "Expected number of input channels; 0 = take it from the first message", "structural",
+       lo=0, hi=16),
+    _p("gap_fill_max_samples", int, 2,
+       "Holes of at most this many missing samples are repaired by linear interpolation; longer "
+       "gaps split the data and restart the Hankel window", "structural", lo=0, hi=100),
+    _p("reorder_window", float, 0.02,
+       "Data held back to put out-of-order samples in stamp order [s] (adds this latency)",
+       "structural", lo=0.0, hi=5.0, unit="s"),
+    # -- estimator (structural) --
+    _p("block_rows", int, 20, "Hankel block rows i of the recursive DSRA (A1) [-]",
+       "structural", lo=2, hi=200),
+    _p("max_order", int, 0, "Largest model order considered; 0 = 2 * max_modes + 2 [-]",
+       "structural", lo=0, hi=400),
+    # -- estimator (live) --
+    _p("forgetting_factor", float, 0.99,
+       "RLS forgetting factor lambda [-] (ignored when memory_time_constant > 0)",
+       lo=0.9, hi=1.0),
+    _p("memory_time_constant", float, 0.0,
+       "Memory of the estimator as a time constant tau [s]; > 0 sets lambda = exp(-1/(tau fs)) "
+       "at the measured rate so behaviour does not change with the sample rate; 0 = use "
+       "forgetting_factor", lo=0.0, hi=3600.0, unit="s"),
+    _p("max_modes", int, 5, "Largest number of modes reported [-]", lo=1, hi=50),
+    _p("freq_min", float, 0.0, "Lower edge of the frequency band of reported modes [Hz]",
+       lo=0.0, hi=50000.0, unit="Hz"),
+    _p("freq_max", float, 0.0,
+       f"Upper edge of the band [Hz]; 0 = {NYQUIST_SAFE_FRACTION:g} x sample rate",
+       lo=0.0, hi=50000.0, unit="Hz"),
+    _p("damping_min", float, 0.0, "Smallest damping ratio of a reported mode [-]",
+       lo=0.0, hi=1.0),
+    _p("damping_max", float, 0.5, "Largest damping ratio of a reported mode [-]",
+       lo=0.0, hi=1.0),
+    _p("realization_rate", float, 10.0,
+       "Rate of the SVD-based realization of the model from the RLS factor [Hz of data time]",
+       lo=0.1, hi=10000.0, unit="Hz"),
+    _p("publish_rate", float, 10.0, "Rate of /modal_estimate [Hz of data time]",
+       lo=0.1, hi=10000.0, unit="Hz"),
+    _p("diagnostics_rate", float, 1.0, "Rate of /diagnostics [Hz, wall clock]",
+       lo=0.1, hi=100.0, unit="Hz"),
+    _p("residual_spectrum_rate", float, 0.2,
+       "Rate of /residual_spectrum [Hz of data time]; 0 = off", lo=0.0, hi=10.0, unit="Hz"),
+    # -- mode tracking gates (live) --
+    _p("tracking_frequency_tolerance", float, 0.05,
+       "Relative frequency gate for matching a mode to a tracked one [-]", lo=0.001, hi=0.5),
+    _p("tracking_confirm_count", int, 3,
+       "Successive matches before a tentative mode becomes tracked [-]", lo=1, hi=100),
+    _p("tracking_lost_timeout", float, 2.0,
+       "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
+       unit="s"),
+    # -- topics and QoS (structural: the node subscribes again) --
+    _p("output_topic", str, "/vibration", "Topic of the measured responses (outputs)",
+       "structural"),
+    _p("output_type", str, "SignalSample", "Message type of output_topic", "structural",
+       choices=SIGNAL_TYPES),
+    _p("input_topic", str, "/excitation",
+       "Topic of the measured excitation (inputs); empty = output-only", "structural"),
+    _p("input_type", str, "SignalSample", "Message type of input_topic", "structural",
+       choices=SIGNAL_TYPES),
+    _p("imu_axes", str, "az",
+       "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
+       "wx,wy,wz (angular velocity)", "structural"),
+    _p("qos", str, "sensor_data",
+       "QoS of the subscriptions: 'sensor_data' (best effort) or 'reliable'", "structural",
+       choices=QOS_CHOICES),
+    _p("qos_depth", int, 200, "History depth of the subscriptions [messages]", "structural",
+       lo=1, hi=100000),
+)
+
+SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMS}
+
+
+def defaults() -> dict[str, Any]:
+    """Name -> default value of every parameter."""
+    return {s.name: s.default for s in PARAMS}
+
+
+def validate(name: str, value: Any) -> str:
+    """Check one value against its spec; return '' if valid, else the reason."""
+    spec = SPECS.get(name)
+    if spec is None:
+        return f"unknown parameter '{name}'"
+    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, spec.type) or (spec.type is int and isinstance(value, bool)):
+        return f"{name} must be of type {spec.type.__name__}, got {type(value).__name__}"
+    if spec.type is float and not math.isfinite(value):
+        return f"{name} must be finite, got {value}"
+    if spec.lo is not None and value < spec.lo:
+        return f"{name}={value} is below the minimum {spec.lo:g}{spec.unit and ' ' + spec.unit}"
+    if spec.hi is not None and value > spec.hi:
+        return f"{name}={value} is above the maximum {spec.hi:g}{spec.unit and ' ' + spec.unit}"
+    if spec.choices is not None and value not in spec.choices:
+        return f"{name}='{value}' is not one of {', '.join(spec.choices)}"
+    if name == "imu_axes":
+        axes = parse_axes(value)
+        bad = [a for a in axes if a not in IMU_AXES]
+        if not axes or bad:
+            return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+    if name in ("output_topic", "input_topic") and value and not value.startswith("/"):
+        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    return ""
+
+
+def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
+    """Check a complete set of parameter values, including cross checks.
+
+    ``sample_rate`` is the effective (configured or measured) rate, NaN while unknown.
+    """
+    for name, value in values.items():
+        reason = validate(name, value)
+        if reason:
+            return reason
+    fmin, fmax = values.get("freq_min", 0.0), values.get("freq_max", 0.0)
+    if fmax > 0 and fmin >= fmax:
+        return f"freq_min={fmin:g} Hz must be below freq_max={fmax:g} Hz"
+    dmin, dmax = values.get("damping_min", 0.0), values.get("damping_max", 0.5)
+    if dmin >= dmax:
+        return f"damping_min={dmin:g} must be below damping_max={dmax:g}"
+    fs = values.get("sample_rate", 0.0) or sample_rate
+    if math.isfinite(fs) and fs > 0:
+        if fmax > fs / 2:
+            return f"freq_max={fmax:g} Hz is above the Nyquist frequency {fs / 2:g} Hz"
+        if fmin >= fs / 2:
+            return f"freq_min={fmin:g} Hz is not below the Nyquist frequency {fs / 2:g} Hz"
+    if values.get("output_topic") and values.get("output_topic") == values.get("input_topic"):
+        return "input_topic and output_topic must differ"
+    return ""
+
+
+def parse_axes(text: str) -> list[str]:
+    """'ax, az' -> ['ax', 'az']."""
+    return [a.strip() for a in str(text).split(",") if a.strip()]
+
+
+def structural_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """Names of structural or read-only parameters whose value differs between two sets."""
+    return [
+        n for n, v in new.items()
+        if n in SPECS and SPECS[n].kind != "live" and old.get(n) != v
+    ]
+
+
+def effective_lambda(values: dict[str, Any], fs: float) -> float:
+    """lambda from ``memory_time_constant`` tau (> 0) at rate ``fs``: exp(-1/(tau fs)).
+
+    Otherwise ``forgetting_factor``. The effective memory is about 1/(1-lambda) samples = tau fs.
+    """
+    tau = float(values.get("memory_time_constant", 0.0))
+    if tau > 0 and math.isfinite(fs) and fs > 0:
+        return math.exp(-1.0 / (tau * fs))
+    return float(values["forgetting_factor"])
+
+
+def effective_band(values: dict[str, Any], fs: float) -> tuple[float, float]:
+    """(fmin, fmax) [Hz] with ``freq_max = 0`` resolved to the safe fraction of ``fs``."""
+    fmax = float(values.get("freq_max", 0.0))
+    if fmax <= 0:
+        fmax = NYQUIST_SAFE_FRACTION * fs if math.isfinite(fs) and fs > 0 else math.inf
+    return float(values.get("freq_min", 0.0)), fmax

@@ -1,0 +1,211 @@
+"""Unit tests of the stamp alignment (ingest.py): one test per kind of bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sysid_node.ingest import Ingest
+
+T0 = 1_700_000_000 * 10**9
+FS = 100.0
+DT = int(1e9 / FS)
+
+
+def _data(n: int, ny: int = 2, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    t = T0 + np.arange(n, dtype=np.int64) * DT
+    return t, rng.standard_normal((n, ny)), rng.standard_normal((n, 1))
+
+
+def _run(ing: Ingest, t, y, u=None, block: int = 10, tu=None, flush: bool = True):
+    chunks = []
+    tu = t if tu is None else tu
+    for a in range(0, len(t), block):
+        ing.push_output(t[a : a + block], y[a : a + block])
+        if u is not None:
+            ing.push_input(tu[a : a + block], u[a : a + block])
+        chunks += ing.pop()
+    chunks += ing.pop(flush=flush)
+    return chunks
+
+
+def _cat(chunks, attr="y"):
+    return np.concatenate([getattr(c, attr) for c in chunks])
+
+
+def test_clean_stream_passes_unchanged_and_rate_is_measured():
+    t, y, u = _data(400)
+    ing = Ingest()
+    chunks = _run(ing, t, y, u)
+    assert ing.fs == pytest.approx(FS, rel=1e-9)
+    assert ing.mode == "io"
+    np.testing.assert_array_equal(_cat(chunks), y)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u)
+    np.testing.assert_array_equal(_cat(chunks, "stamps_ns"), t)
+    assert chunks[0].new_segment and not any(c.new_segment for c in chunks[1:])
+    bad = {k: v for k, v in ing.counters.items() if not k.endswith(("received", "accepted"))}
+    assert bad == {}
+
+
+def test_inputs_aligned_by_stamp_not_arrival():
+    t, y, u = _data(300)
+    ing = Ingest(sample_rate=FS)
+    # input arrives 7 samples later than the output and in a different block size
+    chunks = []
+    for a in range(0, 300, 10):
+        ing.push_output(t[a : a + 10], y[a : a + 10])
+        if a >= 70:
+            b = a - 70
+            ing.push_input(t[b : b + 10], u[b : b + 10])
+        chunks += ing.pop()
+    ing.push_input(t[230:], u[230:])
+    chunks += ing.pop(flush=True)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u)
+    np.testing.assert_array_equal(_cat(chunks), y)
+
+
+def test_out_of_order_messages_are_reordered():
+    t, y, u = _data(200)
+    order = np.arange(200).reshape(-1, 5)
+    order[[3, 4]] = order[[4, 3]]  # two message blocks swapped in arrival
+    order = order.reshape(-1)
+    ing = Ingest(sample_rate=FS, use_input=False, reorder_window=0.1)
+    chunks = _run(ing, t[order], y[order], block=5)
+    np.testing.assert_array_equal(_cat(chunks), y)
+    assert ing.counters["output_out_of_order"] == 5
+    assert ing.counters["output_late"] == 0
+
+
+def test_stamps_going_backwards_are_dropped_as_late():
+    t, y, _ = _data(300)
+    ing = Ingest(sample_rate=FS, use_input=False)
+    chunks = _run(ing, t[:200], y[:200])
+    ing.push_output(t[100:110][::-1], y[100:110][::-1])  # ten old stamps, descending
+    chunks += ing.pop()
+    chunks += _run(ing, t[200:], y[200:])
+    np.testing.assert_array_equal(_cat(chunks), y)
+    assert ing.counters["output_out_of_order"] >= 9
+    assert ing.counters["output_late"] + ing.counters["output_duplicate"] == 10
+    assert any("backwards" in e or "duplicate" in e for e in ing.events)
+
+
+def test_duplicates_dropped_and_counted():
+    t, y, _ = _data(200)
+    td = np.insert(t, [51, 121], t[[50, 120]])  # repeated after the original
+    yd = np.insert(y, [51, 121], y[[50, 120]] + 1.0, axis=0)
+    ing = Ingest(sample_rate=FS, use_input=False)
+    chunks = _run(ing, td, yd)
+    assert ing.counters["output_duplicate"] == 2
+    np.testing.assert_array_equal(_cat(chunks), y)
+
+
+def test_wrong_channel_count_dropped_and_counted():
+    t, y, _ = _data(200, ny=3)
+    ing = Ingest(sample_rate=FS, use_input=False, gap_fill_max_samples=0)
+    chunks = []
+    for a in range(0, 200, 10):
+        yy = y[a : a + 10]
+        if a == 100:
+            yy = yy[:, :2]
+        ing.push_output(t[a : a + 10], yy)
+        chunks += ing.pop()
+    chunks += ing.pop(flush=True)
+    assert ing.counters["output_wrong_channels"] == 10
+    assert ing.counters["gaps"] == 1 and ing.counters["gap_samples"] == 10
+    assert len(chunks) >= 2 and any(c.new_segment for c in chunks[1:])
+    assert all(c.y.shape[1] == 3 for c in chunks)
+    assert any("expected 3" in e for e in ing.events)
+
+
+def test_configured_channel_count_rejects_first_message_with_other_count():
+    t, y, _ = _data(50, ny=2)
+    ing = Ingest(sample_rate=FS, use_input=False, output_channels=6)
+    assert _run(ing, t, y) == []
+    assert ing.counters["output_wrong_channels"] == 50
+
+
+def test_nan_sample_dropped_and_hole_repaired():
+    t, y, _ = _data(200)
+    y_bad = y.copy()
+    y_bad[77, 1] = np.nan
+    y_bad[140, 0] = np.inf
+    ing = Ingest(sample_rate=FS, use_input=False)
+    chunks = _run(ing, t, y_bad)
+    out = _cat(chunks)
+    assert len(out) == 200 and np.isfinite(out).all()
+    assert ing.counters["output_nonfinite"] == 2
+    assert ing.counters["output_repaired"] == 2
+    assert ing.counters.get("gaps", 0) == 0
+    np.testing.assert_allclose(out[77], (y[76] + y[78]) / 2)
+    keep = np.setdiff1d(np.arange(200), [77, 140])
+    np.testing.assert_array_equal(out[keep], y[keep])
+    assert any("NaN/Inf" in e for e in ing.events)
+
+
+def test_two_second_gap_splits_data_and_is_counted():
+    t, y, _ = _data(800)
+    keep = np.r_[0:300, 500:800]
+    ing = Ingest(sample_rate=FS, use_input=False)
+    chunks = _run(ing, t[keep], y[keep])
+    assert ing.counters["gaps"] == 1
+    assert ing.counters["gap_samples"] == 200
+    segs = [c for c in chunks if c.new_segment]
+    assert len(segs) == 2
+    assert segs[1].stamps_ns[0] == t[500]
+    np.testing.assert_array_equal(_cat(chunks), y[keep])  # no good sample lost
+    assert any("gap of 2.000 s" in e for e in ing.events)
+
+
+def test_rate_mismatch_resampled_or_rejected():
+    n = 400
+    t2 = T0 + np.arange(n, dtype=np.int64) * (DT // 2)  # a 200 Hz stream
+    y = np.sin(2 * np.pi * 1.0 * np.arange(n) / 200.0)[:, None]
+    ing = Ingest(sample_rate=FS, use_input=False, rate_mismatch="resample")
+    chunks = _run(ing, t2, y)
+    out = _cat(chunks)
+    stamps = (_cat(chunks, "stamps_ns") - T0) * 1e-9
+    assert np.allclose(np.diff(stamps), 0.01)
+    np.testing.assert_allclose(out[:, 0], np.sin(2 * np.pi * stamps), atol=1e-3)
+    assert any("resampled onto the 100 Hz grid" in e for e in ing.events)
+
+    ing = Ingest(sample_rate=FS, use_input=False, rate_mismatch="reject")
+    chunks = _run(ing, t2, y)
+    assert sum(len(c) for c in chunks) < 30  # only what came before the rate was measured
+    assert ing.counters["output_rate_rejected"] > 0
+    assert any("rejected" in e for e in ing.events)
+
+
+def test_slower_input_stream_resampled_onto_output_grid():
+    t, y, _ = _data(400)
+    tu = T0 + np.arange(200, dtype=np.int64) * 2 * DT  # 50 Hz excitation
+    u = np.linspace(0.0, 1.0, 200)[:, None]
+    ing = Ingest(sample_rate=FS)
+    chunks = []
+    for a in range(0, 400, 20):
+        ing.push_output(t[a : a + 20], y[a : a + 20])
+        ing.push_input(tu[a // 2 : a // 2 + 10], u[a // 2 : a // 2 + 10])
+        chunks += ing.pop()
+    chunks += ing.pop(flush=True)
+    uu = _cat(chunks, "u")[:, 0]
+    assert len(uu) >= 390
+    np.testing.assert_allclose(np.diff(uu), 1.0 / 199 / 2, rtol=1e-6)
+    assert ing.counters["input_resampled"] > 0
+
+
+def test_no_input_means_output_only():
+    t, y, _ = _data(300)
+    ing = Ingest(sample_rate=FS, use_input=True)
+    chunks = _run(ing, t, y)
+    assert ing.mode == "output_only"
+    assert all(c.u is None for c in chunks)
+    np.testing.assert_array_equal(_cat(chunks), y)
+
+
+def test_clock_jumping_back_starts_a_new_time_line():
+    t, y, _ = _data(600)
+    ing = Ingest(sample_rate=FS, use_input=False)
+    chunks = _run(ing, t[:300], y[:300], flush=False)
+    chunks += _run(ing, t[:300] - 0, y[300:], flush=True)  # same stamps again, new data
+    assert ing.counters["time_resets"] == 1
+    assert any(c.reset for c in chunks)
+    assert sum(len(c) for c in chunks) >= 590

@@ -1,0 +1,70 @@
+"""Unit tests of the parameter table (params.py)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from sysid_node import params as P
+
+
+def test_every_parameter_has_description_type_and_valid_default():
+    for spec in P.PARAMS:
+        assert spec.description, spec.name
+        assert spec.kind in ("live", "structural", "read_only")
+        assert P.validate(spec.name, spec.default) == "", spec.name
+        if spec.type in (int, float):
+            assert spec.lo is not None and spec.hi is not None, spec.name
+    assert P.validate_set(P.defaults()) == ""
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "fragment"),
+    [
+        ("forgetting_factor", 1.5, "above the maximum"),
+        ("forgetting_factor", 0.5, "below the minimum"),
+        ("forgetting_factor", math.nan, "finite"),
+        ("block_rows", 1, "below the minimum"),
+        ("block_rows", 2.5, "type int"),
+        ("output_type", "PointCloud2", "not one of"),
+        ("qos", "fast", "not one of"),
+        ("imu_axes", "az,qq", "imu_axes"),
+        ("output_topic", "vibration", "absolute"),
+        ("nonexistent", 1, "unknown parameter"),
+    ],
+)
+def test_invalid_values_rejected_with_reason(name, value, fragment):
+    assert fragment in P.validate(name, value)
+
+
+def test_int_accepted_for_float_parameter():
+    assert P.validate("forgetting_factor", 1) == ""
+
+
+def test_cross_checks():
+    v = P.defaults()
+    assert "below freq_max" in P.validate_set({**v, "freq_min": 5.0, "freq_max": 4.0})
+    assert "below damping_max" in P.validate_set({**v, "damping_min": 0.3, "damping_max": 0.2})
+    assert "Nyquist" in P.validate_set({**v, "freq_max": 60.0}, sample_rate=100.0)
+    assert P.validate_set({**v, "freq_max": 40.0}, sample_rate=100.0) == ""
+    assert "differ" in P.validate_set({**v, "input_topic": "/vibration"})
+
+
+def test_memory_time_constant_gives_rate_independent_memory():
+    v = {**P.defaults(), "memory_time_constant": 2.0}
+    for fs in (100.0, 1000.0):
+        lam = P.effective_lambda(v, fs)
+        assert 1.0 / (1.0 - lam) == pytest.approx(2.0 * fs, rel=0.01)
+    assert P.effective_lambda(P.defaults(), 100.0) == 0.99
+
+
+def test_default_band_is_safe_fraction_of_nyquist():
+    assert P.effective_band(P.defaults(), 100.0) == (0.0, pytest.approx(40.0))
+    assert P.effective_band({**P.defaults(), "freq_max": 12.0}, 100.0) == (0.0, 12.0)
+
+
+def test_structural_changes_listed():
+    old = P.defaults()
+    new = {"block_rows": 30, "forgetting_factor": 0.95, "output_topic": "/imu"}
+    assert sorted(P.structural_changes(old, new)) == ["block_rows", "output_topic"]
