@@ -25,6 +25,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
+            "sysid_node = sysid_node.node:main",
+            "offline = sysid_node.tools.offline:main",
         ],
     },
 )

@@ -1,0 +1,414 @@
+"""ingest -> recursive DSRA -> mode tracker -> estimate records (pure, no rclpy).
+
+The node and the offline tool both drive exactly this class, so a live replay and an offline run
+over the same bag give the same numbers. Everything is timed by the sample stamps, never by the
+wall clock: a record is made each time the data crosses a multiple of ``1/publish_rate`` seconds
+(stamps since the epoch), from exactly the samples up to that instant, and the estimator is fed
+in pieces cut at those instants only, so how the messages were chunked on the way in does not
+change the numbers.
+
+Parameters (see :mod:`sysid_node.params`): live ones are applied to the running estimator;
+structural ones rebuild it (reported through ``log``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sysid_node import params as P
+from sysid_node.ingest import Chunk, Ingest
+
+STATUS_NAMES = ("tentative", "tracked", "lost")
+
+
+@dataclass
+class ModeRecord:
+    """One mode of an estimate (NaN = unknown); ``shape`` is complex over output channels."""
+
+    id: int
+    status: str
+    frequency_hz: float
+    frequency_std_hz: float
+    damping_ratio: float
+    damping_std: float
+    amplitude: float
+    age_s: float
+    shape: np.ndarray
+
+
+@dataclass
+class EstimateRecord:
+    """The modal content identified at one instant (``stamp_ns``: time of the last sample used)."""
+
+    stamp_ns: int
+    modes: list[ModeRecord]
+    model_order: int
+    block_rows: int
+    forgetting_factor: float
+    sample_rate: float
+    prediction_error_rms_per_channel: np.ndarray
+    converged: bool
+    samples_used: int
+    counters: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def prediction_error_rms(self) -> float:
+        """RMS over the output channels, NaN while unknown."""
+        e = np.asarray(self.prediction_error_rms_per_channel, dtype=float)
+        return float(np.sqrt(np.mean(e**2))) if e.size else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-serialisable form (shapes as magnitude and phase lists)."""
+        d = asdict(self)
+        d["stamp"] = self.stamp_ns * 1e-9
+        d["prediction_error_rms"] = self.prediction_error_rms
+        d["prediction_error_rms_per_channel"] = [
+            float(x) for x in self.prediction_error_rms_per_channel
+        ]
+        d["modes"] = []
+        for m in self.modes:
+            md = {k: v for k, v in asdict(m).items() if k != "shape"}
+            md["shape_magnitude"] = [float(x) for x in np.abs(m.shape)]
+            md["shape_phase"] = [float(x) for x in np.angle(m.shape)]
+            d["modes"].append(md)
+        return d
+
+
+def _import_core():
+    from sysid_node.core.recursive import RecursiveDSRA
+    from sysid_node.core.tracking import ModeTracker
+
+    return RecursiveDSRA, ModeTracker
+
+
+def _get(obj: Any, *names: str, default: Any = math.nan) -> Any:
+    for n in names:
+        if hasattr(obj, n):
+            v = getattr(obj, n)
+            return v() if callable(v) else v
+    return default
+
+
+class Pipeline:
+    """The node's processing: feed message blocks in, get :class:`EstimateRecord` objects out.
+
+    ``values`` overrides :func:`sysid_node.params.defaults`; ``log`` receives one line per event
+    (rate measured, gaps, resets, parameter changes).
+    """
+
+    def __init__(
+        self, values: dict[str, Any] | None = None, log: Callable[[str], None] | None = None
+    ) -> None:
+        self.values = P.defaults()
+        if values:
+            reason = P.validate_set({**self.values, **values})
+            if reason:
+                raise ValueError(reason)
+            self.values.update(values)
+        self.log = log or (lambda _msg: None)
+        self.update_seconds = 0.0  # wall time spent in the estimator and the tracker
+        self.update_samples = 0
+        self.last_update_cost = math.nan  # [s per sample] of the latest piece
+        self.records_made = 0
+        self._build_ingest()
+
+    # ---- construction ----
+    def _build_ingest(self) -> None:
+        v = self.values
+        self.ingest = Ingest(
+            sample_rate=v["sample_rate"],
+            use_input=not v["output_only"] and bool(v["input_topic"]),
+            output_channels=v["output_channels"],
+            input_channels=v["input_channels"],
+            gap_fill_max_samples=v["gap_fill_max_samples"],
+            reorder_window=v["reorder_window"],
+            rate_mismatch=v["rate_mismatch"],
+        )
+        self.estimator = None
+        self.tracker = None
+        self._layout: tuple[int, int] | None = None
+        self._pending: list[Chunk] = []
+        self._last_bucket: int | None = None
+        self._samples = 0
+
+    def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
+        RecursiveDSRA, ModeTracker = _import_core()
+        v, fs = self.values, self.sample_rate
+        fmin, fmax = P.effective_band(v, fs)
+        max_order = v["max_order"] or 2 * v["max_modes"] + 2
+        self.estimator = RecursiveDSRA(
+            n_outputs,
+            n_inputs=n_inputs,
+            fs=fs,
+            block_rows=v["block_rows"],
+            max_order=max_order,
+            forgetting_factor=P.effective_lambda(v, fs),
+            realization_interval=self._realization_interval(),
+            band=(fmin, fmax),
+            damping_bounds=(v["damping_min"], v["damping_max"]),
+            max_modes=v["max_modes"],
+        )
+        self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
+        self._layout = (n_outputs, n_inputs)
+        kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
+        self.log(
+            f"estimator started: {n_outputs} output(s), {kind}, {fs:g} Hz, block rows "
+            f"{v['block_rows']}, lambda {P.effective_lambda(v, fs):.5f}, band "
+            f"{fmin:g}-{fmax:g} Hz"
+        )
+
+    def _tracker_kwargs(self, cls: type) -> dict[str, Any]:
+        """Tracking gates, passed under whichever names the tracker accepts."""
+        import inspect
+
+        try:
+            accepted = set(inspect.signature(cls).parameters)
+        except (TypeError, ValueError):
+            accepted = set()
+        v = self.values
+        options = {
+            ("frequency_tolerance", "freq_tol", "frequency_gate"): v[
+                "tracking_frequency_tolerance"
+            ],
+            ("confirm_count", "confirm", "confirm_updates"): v["tracking_confirm_count"],
+            ("lost_timeout", "lost_after", "lost_timeout_s"): v["tracking_lost_timeout"],
+        }
+        kw: dict[str, Any] = {}
+        for names, value in options.items():
+            for n in names:
+                if n in accepted:
+                    kw[n] = value
+                    break
+        return kw
+
+    def _realization_interval(self) -> int:
+        return max(1, round(self.sample_rate / self.values["realization_rate"]))
+
+    def reset(self) -> None:
+        """Forget all data and the estimate (the parameters are kept)."""
+        self._build_ingest()
+
+    # ---- properties ----
+    @property
+    def sample_rate(self) -> float:
+        """Configured or measured sample rate [Hz], NaN while unknown."""
+        return self.ingest.fs
+
+    @property
+    def forgetting_factor(self) -> float:
+        return P.effective_lambda(self.values, self.sample_rate)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self.ingest.counters)
+
+    # ---- data in ----
+    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+        self.ingest.push_output(stamps_ns, values)
+
+    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+        self.ingest.push_input(stamps_ns, values)
+
+    def step(self, flush: bool = False) -> list[EstimateRecord]:
+        """Process what can be processed; return the records due (usually zero or one).
+
+        ``flush``: the data has ended (offline): hand out the samples held for reordering.
+        """
+        chunks = self.ingest.pop(flush=flush)
+        self._drain_events()
+        records: list[EstimateRecord] = []
+        for c in chunks:
+            records += self._feed(c)
+        return records
+
+    def _drain_events(self) -> None:
+        while self.ingest.events:
+            self.log(self.ingest.events.popleft())
+
+    def _bucket_ns(self) -> int:
+        return max(1, round(1e9 / self.values["publish_rate"]))
+
+    def _feed(self, c: Chunk) -> list[EstimateRecord]:
+        """Queue a chunk; feed the estimator up to each publication instant it crosses."""
+        ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
+        if c.reset or (self._layout is not None and self._layout != (ny, nu)):
+            self._pending.clear()
+            if self.estimator is not None:
+                self.log("channel layout or time line changed: estimator reset")
+            self.estimator = None
+        if self.estimator is None:
+            self._build_estimator(ny, nu)
+            self._last_bucket = None
+        elif c.new_segment:
+            self._flush_pending()
+            self._restart_window()
+        # half a period of slack so that a stamp a few ns off a multiple of the publication
+        # period (float seconds in a bag) still falls on the same side
+        half = round(5e8 / self.sample_rate)
+        bucket = (c.stamps_ns + half) // self._bucket_ns()
+        prev = bucket[0] if self._last_bucket is None else self._last_bucket
+        cross = np.flatnonzero(np.diff(np.concatenate(([prev], bucket))) != 0)
+        records = []
+        start = 0
+        for i in cross:
+            # feed everything up to and including sample i, then make the record
+            self._flush_pending()
+            self._update(_slice(c, start, i + 1))
+            start = i + 1
+            records.append(self._record(int(c.stamps_ns[i])))
+        if start < len(c):
+            self._pending.append(_slice(c, start, len(c)))
+        self._last_bucket = int(bucket[-1])
+        return records
+
+    def _flush_pending(self) -> None:
+        for p in self._pending:
+            if len(p):
+                self._update(p)
+        self._pending.clear()
+
+    def _restart_window(self) -> None:
+        est = self.estimator
+        for name in ("restart_window", "new_segment", "break_continuity"):
+            if hasattr(est, name):
+                getattr(est, name)()
+                return
+        est.reset()
+
+    def _update(self, c: Chunk) -> None:
+        t0 = time.perf_counter()
+        self.estimator.update(c.u, c.y)
+        dt = time.perf_counter() - t0
+        self.update_seconds += dt
+        self.update_samples += len(c)
+        self.last_update_cost = dt / len(c)
+        self._samples += len(c)
+
+    def _record(self, stamp_ns: int) -> EstimateRecord:
+        est, v = self.estimator, self.values
+        t0 = time.perf_counter()
+        modes = list(est.modes())
+        fmin, fmax = P.effective_band(v, self.sample_rate)
+        modes = [
+            m for m in modes
+            if fmin <= m.frequency_hz <= fmax
+            and v["damping_min"] <= m.damping_ratio <= v["damping_max"]
+        ]
+        modes = sorted(modes, key=lambda m: -_finite(m.amplitude))[: v["max_modes"]]
+        tracked = self.tracker.update(modes, stamp_ns * 1e-9)
+        self.update_seconds += time.perf_counter() - t0
+        out = [self._mode_record(tm, stamp_ns * 1e-9) for tm in tracked]
+        out.sort(key=lambda m: m.frequency_hz)
+        pe = np.asarray(_get(est, "prediction_error_rms", default=np.full(self._layout[0], np.nan)),
+                        dtype=float).reshape(-1)
+        self.records_made += 1
+        return EstimateRecord(
+            stamp_ns=stamp_ns,
+            modes=out,
+            model_order=int(_get(est, "model_order", "order", default=2 * len(modes)) or 0),
+            block_rows=int(v["block_rows"]),
+            forgetting_factor=self.forgetting_factor,
+            sample_rate=self.sample_rate,
+            prediction_error_rms_per_channel=pe,
+            converged=bool(_get(est, "converged", default=False)),
+            samples_used=int(_get(est, "samples_seen", default=self._samples)),
+            counters=self.counters,
+        )
+
+    def _mode_record(self, tm: Any, t: float) -> ModeRecord:
+        m = getattr(tm, "mode", None) or getattr(tm, "modal", None) or tm
+        status = getattr(tm, "status", "tentative")
+        if not isinstance(status, str):
+            status = STATUS_NAMES[int(status)]
+        first = _get(tm, "first_seen", default=t)
+        shape = np.asarray(_get(m, "shape", default=np.full(self._layout[0], np.nan)))
+        return ModeRecord(
+            id=int(_get(tm, "id", "mode_id", default=0)),
+            status=status,
+            frequency_hz=float(_get(m, "frequency_hz")),
+            frequency_std_hz=float(_get(m, "frequency_std_hz")),
+            damping_ratio=float(_get(m, "damping_ratio")),
+            damping_std=float(_get(m, "damping_std")),
+            amplitude=float(_get(m, "amplitude")),
+            age_s=float(t - first) if math.isfinite(first) else math.nan,
+            shape=shape.astype(complex),
+        )
+
+    # ---- parameters ----
+    def set_parameters(self, changes: dict[str, Any]) -> str:
+        """Validate and apply ``changes``; return '' on success, else the reason (nothing
+        changed). Structural changes rebuild the estimator with a log line."""
+        changes = {k: v for k, v in changes.items() if self.values.get(k) != v}
+        if not changes:
+            return ""
+        new = {**self.values, **changes}
+        fs = self.sample_rate if self.values["sample_rate"] == new["sample_rate"] else math.nan
+        reason = P.validate_set(new, sample_rate=fs)
+        if reason:
+            return reason
+        structural = P.structural_changes(self.values, changes)
+        self.values = new
+        if structural:
+            self.log(f"structural parameter(s) changed ({', '.join(sorted(structural))}): "
+                     "estimator reset")
+            self._build_ingest()
+            return ""
+        self._apply_live(changes)
+        self.log("parameter(s) applied live: "
+                 + ", ".join(f"{k}={v}" for k, v in sorted(changes.items())))
+        return ""
+
+    def _apply_live(self, changes: dict[str, Any]) -> None:
+        est, v, fs = self.estimator, self.values, self.sample_rate
+        if any(k.startswith("tracking_") for k in changes) and self.tracker is not None:
+            for names, key in (
+                (("frequency_tolerance", "freq_tol"), "tracking_frequency_tolerance"),
+                (("confirm_count", "confirm"), "tracking_confirm_count"),
+                (("lost_timeout", "lost_after"), "tracking_lost_timeout"),
+            ):
+                for n in names:
+                    if hasattr(self.tracker, n):
+                        setattr(self.tracker, n, v[key])
+                        break
+        if est is None:
+            return
+        if {"forgetting_factor", "memory_time_constant"} & changes.keys():
+            est.set_forgetting_factor(P.effective_lambda(v, fs))
+        if {"freq_min", "freq_max"} & changes.keys():
+            est.set_band(P.effective_band(v, fs))
+        if {"damping_min", "damping_max"} & changes.keys():
+            bounds = (v["damping_min"], v["damping_max"])
+            if hasattr(est, "set_damping_bounds"):
+                est.set_damping_bounds(bounds)
+            elif hasattr(est, "damping_bounds"):
+                est.damping_bounds = bounds
+        if "max_modes" in changes:
+            if hasattr(est, "set_max_modes"):
+                est.set_max_modes(v["max_modes"])
+            elif hasattr(est, "max_modes"):
+                est.max_modes = v["max_modes"]
+        if "realization_rate" in changes:
+            if hasattr(est, "set_realization_interval"):
+                est.set_realization_interval(self._realization_interval())
+            elif hasattr(est, "realization_interval"):
+                est.realization_interval = self._realization_interval()
+
+
+def _finite(x: float) -> float:
+    return x if math.isfinite(x) else -math.inf
+
+
+def _slice(c: Chunk, a: int, b: int) -> Chunk:
+    """Rows ``a:b`` of a chunk (a new segment only if it starts where ``c`` does)."""
+    return Chunk(
+        stamps_ns=c.stamps_ns[a:b],
+        y=c.y[a:b],
+        u=None if c.u is None else c.u[a:b],
+        new_segment=c.new_segment and a == 0,
+    )

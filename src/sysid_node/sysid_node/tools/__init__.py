@@ -1,0 +1,1 @@
+"""Executables of sysid_node: replay, record, offline, validate."""

@@ -1,0 +1,296 @@
+"""``offline``: the node's processing over a bag, without DDS, as fast as possible.
+
+    ros2 run sysid_node offline --bag IN --output OUT [--params-file FILE]
+
+Reads the output (and input) topic messages of a bag in log-time order, converts each message
+with the node's own conversion and feeds :class:`sysid_node.pipeline.Pipeline`, exactly as the
+node does; publication instants come from the sample stamps, so the run is deterministic and
+matches a live replay. Writes ``/modal_estimate`` (``sysid_msgs/msg/ModalEstimate``) into the
+rosbag2 bag ``OUT``, one CSV row per mode per estimate to ``OUT.csv`` and a JSON summary to
+``OUT.json``. The parameter file is the node's (``sysid_node: ros__parameters: ...``).
+A bad bag or parameter file ends the run with a one-line reason and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sysid_node import msg_convert as mc
+from sysid_node import params as P
+from sysid_node.pipeline import EstimateRecord, Pipeline
+
+NODE_NAME = "sysid_node"
+ESTIMATE_TOPIC = "/modal_estimate"
+ESTIMATE_TYPE = "sysid_msgs/msg/ModalEstimate"
+TYPE_NAMES = {
+    "sysid_msgs/msg/SignalSample": "SignalSample",
+    "sysid_msgs/msg/SignalBlock": "SignalBlock",
+    "sensor_msgs/msg/Imu": "Imu",
+}
+
+
+class OfflineError(RuntimeError):
+    """Ends the run with a one-line reason."""
+
+
+def load_params_file(path: Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Parameters for ``node_name`` from a ROS 2 YAML parameter file (``/**`` entries apply to
+    every node, as in ROS); unknown names and invalid values raise OfflineError."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text()) or {}
+    except OSError as err:
+        raise OfflineError(f"cannot read parameter file {path}: {err.strerror}") from None
+    except yaml.YAMLError as err:
+        line = getattr(getattr(err, "problem_mark", None), "line", None)
+        where = f" (line {line + 1})" if line is not None else ""
+        raise OfflineError(f"parameter file {path} is not valid YAML{where}") from None
+    if not isinstance(doc, dict):
+        raise OfflineError(f"parameter file {path}: expected '{node_name}: ros__parameters:'")
+    values: dict[str, Any] = {}
+    for key in ("/**", "**", node_name, "/" + node_name):
+        section = doc.get(key)
+        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
+            values.update(section["ros__parameters"])
+    unknown = sorted(k for k in values if k not in P.SPECS and k != "use_sim_time")
+    if unknown:
+        raise OfflineError(f"parameter file {path}: unknown parameter(s) {', '.join(unknown)}")
+    values.pop("use_sim_time", None)
+    for k, v in values.items():
+        if P.SPECS[k].type is float and isinstance(v, int) and not isinstance(v, bool):
+            values[k] = float(v)
+    reason = P.validate_set({**P.defaults(), **values})
+    if reason:
+        raise OfflineError(f"parameter file {path}: {reason}")
+    return values
+
+
+def _bag_topics(bag: Path) -> dict[str, tuple[str, int]]:
+    from sysid_node import bag_io
+
+    return bag_io.list_topics(bag)
+
+
+class Progress:
+    """A plain-text progress bar on stderr (one line rewritten with carriage returns)."""
+
+    def __init__(self, total: int, enabled: bool = True, width: int = 30) -> None:
+        self.total, self.enabled, self.width = max(total, 1), enabled, width
+        self._last = -1.0
+        self._t0 = time.monotonic()
+
+    def update(self, done: int, note: str = "") -> None:
+        if not self.enabled:
+            return
+        frac = min(done / self.total, 1.0)
+        if frac - self._last < 0.01 and frac < 1.0:
+            return
+        self._last = frac
+        n = int(frac * self.width)
+        bar = "#" * n + "." * (self.width - n)
+        el = time.monotonic() - self._t0
+        sys.stderr.write(f"\roffline [{bar}] {100 * frac:5.1f}% {el:6.1f} s {note:<24}")
+        if frac >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def run(
+    bag: Path,
+    values: dict[str, Any] | None = None,
+    progress: bool = False,
+    log=None,
+) -> tuple[list[EstimateRecord], Pipeline, dict[str, Any]]:
+    """Run the pipeline over ``bag``; return the records, the pipeline and run information."""
+    from sysid_node import bag_io
+
+    values = dict(values or {})
+    pipeline = Pipeline(values, log=log)
+    v = pipeline.values
+    topics = _bag_topics(bag)
+    out_topic, in_topic = v["output_topic"], v["input_topic"]
+    if out_topic not in topics:
+        raise OfflineError(
+            f"no topic {out_topic} in bag {bag}; available: {', '.join(sorted(topics)) or '-'}"
+        )
+    selected = {"output": out_topic}
+    if in_topic and not v["output_only"] and in_topic in topics:
+        selected["input"] = in_topic
+    kinds: dict[str, str] = {}
+    for stream, topic in selected.items():
+        msgtype = topics[topic][0]
+        if msgtype not in TYPE_NAMES:
+            raise OfflineError(
+                f"topic {topic} in bag {bag} has type {msgtype}; supported: "
+                + ", ".join(TYPE_NAMES)
+            )
+        kinds[topic] = TYPE_NAMES[msgtype]
+        if kinds[topic] != v[f"{stream}_type"] and log:
+            log(f"{topic} is {kinds[topic]} in the bag ({stream}_type is {v[stream + '_type']})")
+    stream_of = {t: s for s, t in selected.items()}
+    axes = P.parse_axes(v["imu_axes"])
+    total = sum(topics[t][1] for t in selected.values())
+    bar = Progress(total, enabled=progress)
+    ts = bag_io.typestore()
+    records: list[EstimateRecord] = []
+    n = 0
+    t_start = time.perf_counter()
+    batch: list[tuple[str, np.ndarray, np.ndarray]] = []
+    for conn, _log_ns, raw in bag_io.iter_messages(bag, list(selected.values())):
+        try:
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+        except Exception as err:
+            raise OfflineError(
+                f"cannot decode a {conn.msgtype} message on {conn.topic} in {bag}: "
+                f"{' '.join(str(err).split())[:200]}"
+            ) from None
+        stamps, vals = mc.to_arrays(msg, kinds[conn.topic], axes)
+        batch.append((stream_of[conn.topic], stamps, vals))
+        n += 1
+        if len(batch) >= 64:
+            records += _process(pipeline, batch)
+            batch = []
+            bar.update(n, f"{len(records)} estimates")
+    records += _process(pipeline, batch)
+    records += pipeline.step(flush=True)
+    bar.update(total, f"{len(records)} estimates")
+    wall = time.perf_counter() - t_start
+    info = {
+        "bag": str(bag),
+        "topics": selected,
+        "messages": n,
+        "wall_time_s": wall,
+        "mode": pipeline.ingest.mode,
+    }
+    return records, pipeline, info
+
+
+def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
+    """Feed messages as the node's worker does: per stream, stacked blocks; then one step."""
+    for stream in ("output", "input"):
+        blocks = [(t, v) for s, t, v in batch if s == stream]
+        push = pipeline.push_output if stream == "output" else pipeline.push_input
+        for t, v in mc.stack_blocks(blocks):
+            push(t, v)
+    return pipeline.step()
+
+
+CSV_FIELDS = [
+    "stamp", "samples_used", "converged", "forgetting_factor", "model_order",
+    "prediction_error_rms", "mode_id", "status", "frequency_hz", "frequency_std_hz",
+    "damping_ratio", "damping_std", "amplitude", "age_s",
+]
+
+
+def write_csv(path: Path, records: list[EstimateRecord]) -> None:
+    """One row per mode per estimate (an estimate without modes gives one row, mode fields
+    empty)."""
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_FIELDS)
+        for r in records:
+            head = [f"{r.stamp_ns * 1e-9:.9f}", r.samples_used, int(r.converged),
+                    f"{r.forgetting_factor:.6g}", r.model_order, f"{r.prediction_error_rms:.6g}"]
+            if not r.modes:
+                w.writerow(head + [""] * 8)
+            for m in r.modes:
+                w.writerow(head + [m.id, m.status] + [
+                    f"{x:.6g}" for x in (m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
+                                         m.damping_std, m.amplitude, m.age_s)])
+
+
+def write_bag(path: Path, records: list[EstimateRecord]) -> None:
+    from sysid_node import bag_io
+
+    ts = bag_io.typestore()
+    with bag_io.BagWriter(path) as bag:
+        bag.add_topic(ESTIMATE_TOPIC, ESTIMATE_TYPE,
+                      [bag_io.make_qos(reliable=True, transient_local=True, depth=1)])
+        for r in records:
+            bag.write(ESTIMATE_TOPIC, r.stamp_ns, mc.estimate_rosbags(r, ts))
+
+
+def summary(records: list[EstimateRecord], pipeline: Pipeline, info: dict) -> dict[str, Any]:
+    last = records[-1] if records else None
+    data_s = (records[-1].stamp_ns - records[0].stamp_ns) * 1e-9 if len(records) > 1 else 0.0
+    return {
+        **info,
+        "parameters": pipeline.values,
+        "sample_rate_hz": pipeline.sample_rate,
+        "estimates": len(records),
+        "data_time_s": data_s,
+        "realtime_factor": data_s / info["wall_time_s"] if info["wall_time_s"] > 0 else math.nan,
+        "update_cost_us_per_sample": (
+            1e6 * pipeline.update_seconds / pipeline.update_samples
+            if pipeline.update_samples else math.nan
+        ),
+        "counters": pipeline.counters,
+        "final": last.to_dict() if last else None,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="offline", description="Run sysid_node's processing over a bag, without DDS."
+    )
+    ap.add_argument("--bag", required=True, type=Path, help="input rosbag2 (mcap or sqlite3)")
+    ap.add_argument("--output", required=True, type=Path,
+                    help="output bag with /modal_estimate; OUT.csv and OUT.json are written too")
+    ap.add_argument("--params-file", type=Path, help="the node's YAML parameter file")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar, no log lines")
+    args = ap.parse_args(argv)
+    from sysid_node.bag_io import BagError
+
+    def log(text: str) -> None:
+        if not args.quiet:
+            print(f"[offline] {text}", file=sys.stderr)
+
+    try:
+        values = load_params_file(args.params_file) if args.params_file else {}
+        if args.output.exists():
+            raise OfflineError(f"output already exists: {args.output}")
+        if not args.output.parent.is_dir():
+            raise OfflineError(f"output directory does not exist: {args.output.parent}")
+        records, pipeline, info = run(args.bag, values, progress=not args.quiet, log=log)
+        if not records:
+            raise OfflineError(f"no estimate could be made from {args.bag} "
+                               f"(counters: {pipeline.counters or 'no samples'})")
+        write_bag(args.output, records)
+        csv_path = args.output.with_name(args.output.name + ".csv")
+        json_path = args.output.with_name(args.output.name + ".json")
+        write_csv(csv_path, records)
+        json_path.write_text(json.dumps(summary(records, pipeline, info), indent=2,
+                                        default=_json_default))
+    except (OfflineError, BagError, ValueError) as err:
+        print(f"offline: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("offline: interrupted", file=sys.stderr)
+        return 130
+    last = records[-1]
+    freqs = ", ".join(f"{m.frequency_hz:.3f} Hz ({m.status})" for m in last.modes) or "none"
+    print(f"offline: {len(records)} estimates from {info['messages']} messages in "
+          f"{info['wall_time_s']:.2f} s -> {args.output} (+ .csv, .json); last: {freqs}")
+    return 0
+
+
+def _json_default(x: Any) -> Any:
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return str(x)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
