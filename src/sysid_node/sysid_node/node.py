@@ -125,7 +125,10 @@ class SysidNode(Node):
         self._last_record: EstimateRecord | None = None
         self._last_publish_wall = math.nan
         self._latency = math.nan
-        self.pipeline = Pipeline(values, log=self._log)
+        try:
+            self.pipeline = Pipeline(values, log=self._log)
+        except ImportError as err:
+            raise StartupError(f"the DSRA core cannot be imported: {err}") from None
         self.estimate_pub = self.create_publisher(
             mc_estimate_type(), "/modal_estimate", ESTIMATE_QOS
         )
@@ -219,7 +222,8 @@ class SysidNode(Node):
                 with self._lock:
                     records = self._process(items)
             except Exception as err:  # keep running on anything the data throws at us
-                self.get_logger().error(f"processing failed, estimator reset: {err!r}")
+                self.get_logger().error(f"processing failed, estimator reset: {err!r}",
+                                        throttle_duration_sec=5.0)
                 with self._lock:
                     self.pipeline.reset()
                 continue

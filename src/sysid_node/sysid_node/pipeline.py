@@ -112,6 +112,7 @@ class Pipeline:
                 raise ValueError(reason)
             self.values.update(values)
         self.log = log or (lambda _msg: None)
+        self._core = _import_core()  # fail at start-up, not at the first sample
         self.update_seconds = 0.0  # wall time spent in the estimator and the tracker
         self.update_samples = 0
         self.last_update_cost = math.nan  # [s per sample] of the latest piece
@@ -138,7 +139,7 @@ class Pipeline:
         self._samples = 0
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
-        RecursiveDSRA, ModeTracker = _import_core()
+        RecursiveDSRA, ModeTracker = self._core
         v, fs = self.values, self.sample_rate
         fmin, fmax = P.effective_band(v, fs)
         max_order = v["max_order"] or 2 * v["max_modes"] + 2
