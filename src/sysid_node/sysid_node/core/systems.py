@@ -241,3 +241,17 @@ def paper_example_data(
     y = simulate_switching([(0.0, sys_a), (switch_time_s, sys_b)], u, fs)
     y = add_output_noise(y, noise_fraction, rng)
     return np.arange(n) / fs, u, y
+
+
+def simulate_discrete(
+    ad: np.ndarray,
+    bd: np.ndarray,
+    cd: np.ndarray,
+    dd: np.ndarray,
+    u: np.ndarray,
+    x0: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete x+ = Ad x + Bd u, y = Cd x + Dd u for u (N, m); returns (y (N, l), final state)."""
+    u = np.asarray(u, dtype=float).reshape(-1, bd.shape[1])
+    x0 = np.zeros(ad.shape[0]) if x0 is None else np.asarray(x0, dtype=float).ravel()
+    return _simulate_discrete(ad, bd, cd, dd, u, x0)
