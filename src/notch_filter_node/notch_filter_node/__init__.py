@@ -1,0 +1,1 @@
+"""Adaptive notch filter bank following the structural modes identified by sysid_node."""
