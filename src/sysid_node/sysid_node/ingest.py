@@ -40,6 +40,8 @@ TIME_JUMP = 1.0
 #: ... and a new time line once such samples span this much data [s].
 TIME_RESET_SPAN = 0.5
 _RECENT = 4096
+#: A measured rate this close to a round value [ppm] is taken as that value.
+SNAP_PPM = 20.0
 
 
 @dataclass
@@ -276,7 +278,7 @@ class Ingest:
         steps = round(span / med)
         if steps >= 1 and abs(span / steps - med) < 0.1 * med:
             med = span / steps
-        return 1.0 / (round(med * 1e9) * 1e-9)
+        return _snap_rate(1.0 / med)
 
     def rates(self) -> dict[str, float]:
         """Measured rate of each stream [Hz], NaN while unknown."""
@@ -347,14 +349,17 @@ class Ingest:
         g = self.t0 + k * T
         valid = np.ones(len(g), bool)
         vals = []
+        stamps_t = g
         for s in streams:
-            v, ok, interp = self._sample_at(s, g, T)
+            v, ok, interp, st = self._sample_at(s, g, T)
+            if s is self.out:
+                stamps_t = st
             valid &= ok
             vals.append(v)
             n_interp = int((interp & ok).sum())
             if n_interp:
                 self.counters[f"{s.name}_{'resampled' if s.mismatch else 'repaired'}"] += n_interp
-        chunks = self._split(k, g, valid, vals)
+        chunks = self._split(k, stamps_t, valid, vals)
         self.next_k = kmax + 1
         keep_from = self.watermark - (self.max_fill + 2) * T
         for s in (self.out, self.inp):
@@ -405,7 +410,8 @@ class Ingest:
 
     def _sample_at(self, s: _Stream, g: np.ndarray, T: float):
         """Values of stream ``s`` at grid times ``g``: taken (stamp within tolerance) or
-        interpolated between neighbours at most ``max_fill + 1`` periods apart."""
+        interpolated between neighbours at most ``max_fill + 1`` periods apart; also the stamp
+        of each value (the sample's own when taken, the grid time when interpolated)."""
         t = s.t
         j = np.searchsorted(t, g)
         jl = np.clip(j - 1, 0, len(t) - 1)
@@ -423,7 +429,8 @@ class Ingest:
             w = ((g[interp] - t[jl[interp]]) / span[interp])[:, None]
             out[interp] = s.v[jl[interp]] * (1 - w) + s.v[jr[interp]] * w
         ok = exact | interp
-        return out, ok, interp
+        stamps = np.where(exact, t[ji], g)  # a sample taken as it is keeps its own stamp
+        return out, ok, interp, stamps
 
     def _split(self, k, g, valid, vals) -> list[Chunk]:
         chunks: list[Chunk] = []
@@ -451,6 +458,16 @@ class Ingest:
             self._emitted_any = True
         self._missing(len(k) - pos)
         return chunks
+
+
+def _snap_rate(fs: float) -> float:
+    """The roundest rate (whole, tenths or hundredths of Hz) within ``SNAP_PPM`` of ``fs``:
+    stamps stored as float seconds or quantized by a driver make 100 Hz measure as 99.99993."""
+    for digits in (0, 1, 2):
+        r = round(fs, digits)
+        if r > 0 and abs(r - fs) <= SNAP_PPM * 1e-6 * fs:
+            return float(r)
+    return fs
 
 
 def _distance_to_nearest(sorted_t: np.ndarray, t: np.ndarray) -> np.ndarray:

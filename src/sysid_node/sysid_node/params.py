@@ -73,7 +73,8 @@ PARAMS: tuple[ParamSpec, ...] = (
     # -- estimator (structural) --
     _p("block_rows", int, 20, "Hankel block rows i of the recursive DSRA (A1) [-]",
        "structural", lo=2, hi=200),
-    _p("max_order", int, 0, "Largest model order considered; 0 = 2 * max_modes + 2 [-]",
+    _p("max_order", int, 0,
+       "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
        "structural", lo=0, hi=400),
     # -- estimator (live) --
     _p("forgetting_factor", float, 0.99,

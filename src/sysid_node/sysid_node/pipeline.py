@@ -142,7 +142,8 @@ class Pipeline:
         RecursiveDSRA, ModeTracker = self._core
         v, fs = self.values, self.sample_rate
         fmin, fmax = P.effective_band(v, fs)
-        max_order = v["max_order"] or 2 * v["max_modes"] + 2
+        top = n_outputs * (v["block_rows"] - 1)  # largest order the Hankel rows allow
+        max_order = min(v["max_order"], top) if v["max_order"] else None
         self.estimator = RecursiveDSRA(
             n_outputs,
             n_inputs=n_inputs,
@@ -275,12 +276,14 @@ class Pipeline:
         self._pending.clear()
 
     def _restart_window(self) -> None:
+        """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
         est = self.estimator
-        for name in ("restart_window", "new_segment", "break_continuity"):
-            if hasattr(est, name):
-                getattr(est, name)()
-                return
-        est.reset()
+        if hasattr(est, "restart_window"):
+            est.restart_window()
+            return
+        # RecursiveDSRA.update skips a NaN sample and restarts its window after it
+        ny, nu = self._layout
+        est.update(np.full((1, nu), np.nan) if nu else None, np.full((1, ny), np.nan))
 
     def _update(self, c: Chunk) -> None:
         t0 = time.perf_counter()
@@ -312,7 +315,7 @@ class Pipeline:
         return EstimateRecord(
             stamp_ns=stamp_ns,
             modes=out,
-            model_order=int(_get(est, "model_order", "order", default=2 * len(modes)) or 0),
+            model_order=_model_order(est),
             block_rows=int(v["block_rows"]),
             forgetting_factor=self.forgetting_factor,
             sample_rate=self.sample_rate,
@@ -381,14 +384,8 @@ class Pipeline:
             return
         if {"forgetting_factor", "memory_time_constant"} & changes.keys():
             est.set_forgetting_factor(P.effective_lambda(v, fs))
-        if {"freq_min", "freq_max"} & changes.keys():
-            est.set_band(P.effective_band(v, fs))
-        if {"damping_min", "damping_max"} & changes.keys():
-            bounds = (v["damping_min"], v["damping_max"])
-            if hasattr(est, "set_damping_bounds"):
-                est.set_damping_bounds(bounds)
-            elif hasattr(est, "damping_bounds"):
-                est.damping_bounds = bounds
+        if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
+            est.set_band(P.effective_band(v, fs), (v["damping_min"], v["damping_max"]))
         if "max_modes" in changes:
             if hasattr(est, "set_max_modes"):
                 est.set_max_modes(v["max_modes"])
@@ -399,6 +396,14 @@ class Pipeline:
                 est.set_realization_interval(self._realization_interval())
             elif hasattr(est, "realization_interval"):
                 est.realization_interval = self._realization_interval()
+
+
+def _model_order(est: Any) -> int:
+    """State dimension of the latest realized model (0 before the first)."""
+    model = getattr(est, "model", None)
+    if model is not None and getattr(model, "A", None) is not None:
+        return int(np.asarray(model.A).shape[0])
+    return 0
 
 
 def _finite(x: float) -> float:

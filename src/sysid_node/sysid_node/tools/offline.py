@@ -186,9 +186,20 @@ def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
 
 
 CSV_FIELDS = [
-    "stamp", "samples_used", "converged", "forgetting_factor", "model_order",
-    "prediction_error_rms", "mode_id", "status", "frequency_hz", "frequency_std_hz",
-    "damping_ratio", "damping_std", "amplitude", "age_s",
+    "stamp",
+    "samples_used",
+    "converged",
+    "forgetting_factor",
+    "model_order",
+    "prediction_error_rms",
+    "mode_id",
+    "status",
+    "frequency_hz",
+    "frequency_std_hz",
+    "damping_ratio",
+    "damping_std",
+    "amplitude",
+    "age_s",
 ]
 
 
@@ -199,14 +210,32 @@ def write_csv(path: Path, records: list[EstimateRecord]) -> None:
         w = csv.writer(fh)
         w.writerow(CSV_FIELDS)
         for r in records:
-            head = [f"{r.stamp_ns * 1e-9:.9f}", r.samples_used, int(r.converged),
-                    f"{r.forgetting_factor:.6g}", r.model_order, f"{r.prediction_error_rms:.6g}"]
+            head = [
+                f"{r.stamp_ns * 1e-9:.9f}",
+                r.samples_used,
+                int(r.converged),
+                f"{r.forgetting_factor:.6g}",
+                r.model_order,
+                f"{r.prediction_error_rms:.6g}",
+            ]
             if not r.modes:
                 w.writerow(head + [""] * 8)
             for m in r.modes:
-                w.writerow(head + [m.id, m.status] + [
-                    f"{x:.6g}" for x in (m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
-                                         m.damping_std, m.amplitude, m.age_s)])
+                w.writerow(
+                    head
+                    + [m.id, m.status]
+                    + [
+                        f"{x:.6g}"
+                        for x in (
+                            m.frequency_hz,
+                            m.frequency_std_hz,
+                            m.damping_ratio,
+                            m.damping_std,
+                            m.amplitude,
+                            m.age_s,
+                        )
+                    ]
+                )
 
 
 def write_bag(path: Path, records: list[EstimateRecord]) -> None:
@@ -214,8 +243,11 @@ def write_bag(path: Path, records: list[EstimateRecord]) -> None:
 
     ts = bag_io.typestore()
     with bag_io.BagWriter(path) as bag:
-        bag.add_topic(ESTIMATE_TOPIC, ESTIMATE_TYPE,
-                      [bag_io.make_qos(reliable=True, transient_local=True, depth=1)])
+        bag.add_topic(
+            ESTIMATE_TOPIC,
+            ESTIMATE_TYPE,
+            [bag_io.make_qos(reliable=True, transient_local=True, depth=1)],
+        )
         for r in records:
             bag.write(ESTIMATE_TOPIC, r.stamp_ns, mc.estimate_rosbags(r, ts))
 
@@ -232,7 +264,8 @@ def summary(records: list[EstimateRecord], pipeline: Pipeline, info: dict) -> di
         "realtime_factor": data_s / info["wall_time_s"] if info["wall_time_s"] > 0 else math.nan,
         "update_cost_us_per_sample": (
             1e6 * pipeline.update_seconds / pipeline.update_samples
-            if pipeline.update_samples else math.nan
+            if pipeline.update_samples
+            else math.nan
         ),
         "counters": pipeline.counters,
         "final": last.to_dict() if last else None,
@@ -244,8 +277,12 @@ def main(argv: list[str] | None = None) -> int:
         prog="offline", description="Run sysid_node's processing over a bag, without DDS."
     )
     ap.add_argument("--bag", required=True, type=Path, help="input rosbag2 (mcap or sqlite3)")
-    ap.add_argument("--output", required=True, type=Path,
-                    help="output bag with /modal_estimate; OUT.csv and OUT.json are written too")
+    ap.add_argument(
+        "--output",
+        required=True,
+        type=Path,
+        help="output bag with /modal_estimate; OUT.csv and OUT.json are written too",
+    )
     ap.add_argument("--params-file", type=Path, help="the node's YAML parameter file")
     ap.add_argument("--quiet", action="store_true", help="no progress bar, no log lines")
     args = ap.parse_args(argv)
@@ -263,14 +300,17 @@ def main(argv: list[str] | None = None) -> int:
             raise OfflineError(f"output directory does not exist: {args.output.parent}")
         records, pipeline, info = run(args.bag, values, progress=not args.quiet, log=log)
         if not records:
-            raise OfflineError(f"no estimate could be made from {args.bag} "
-                               f"(counters: {pipeline.counters or 'no samples'})")
+            raise OfflineError(
+                f"no estimate could be made from {args.bag} "
+                f"(counters: {pipeline.counters or 'no samples'})"
+            )
         write_bag(args.output, records)
         csv_path = args.output.with_name(args.output.name + ".csv")
         json_path = args.output.with_name(args.output.name + ".json")
         write_csv(csv_path, records)
-        json_path.write_text(json.dumps(summary(records, pipeline, info), indent=2,
-                                        default=_json_default))
+        json_path.write_text(
+            json.dumps(summary(records, pipeline, info), indent=2, default=_json_default)
+        )
     except (OfflineError, BagError, ValueError) as err:
         print(f"offline: error: {err}", file=sys.stderr)
         return 2
@@ -279,8 +319,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     last = records[-1]
     freqs = ", ".join(f"{m.frequency_hz:.3f} Hz ({m.status})" for m in last.modes) or "none"
-    print(f"offline: {len(records)} estimates from {info['messages']} messages in "
-          f"{info['wall_time_s']:.2f} s -> {args.output} (+ .csv, .json); last: {freqs}")
+    print(
+        f"offline: {len(records)} estimates from {info['messages']} messages in "
+        f"{info['wall_time_s']:.2f} s -> {args.output} (+ .csv, .json); last: {freqs}"
+    )
     return 0
 
 
