@@ -25,6 +25,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
+            "replay = sysid_node.tools.replay:main",
+            "record = sysid_node.tools.record:main",
             "sysid_node = sysid_node.node:main",
             "offline = sysid_node.tools.offline:main",
         ],

@@ -390,15 +390,17 @@ def write_bag(
     topics_messages: Mapping[str, tuple[str, Iterable[tuple[int, object]]]],
     storage: str = "mcap",
     compress: bool = False,
+    qos: Mapping[str, Sequence[Qos]] | None = None,
 ) -> Path:
     """Write ``{topic: (msgtype, [(log timestamp ns, rosbags message), ...])}`` to a new bag.
 
     Messages of all topics are written in log-time order (ties keep the topic order).
+    ``qos`` optionally gives a topic's offered QoS profiles (see ``make_qos``).
     """
     with BagWriter(path, storage=storage, compress=compress) as bag:
         queue: list[tuple[int, int, int, object]] = []
         for k, (topic, (msgtype, items)) in enumerate(topics_messages.items()):
-            bag.add_topic(topic, msgtype)
+            bag.add_topic(topic, msgtype, qos=(qos or {}).get(topic, ()))
             queue.extend((int(ts), k, i, m) for i, (ts, m) in enumerate(items))
         names = list(topics_messages)
         queue.sort(key=lambda q: (q[0], q[1], q[2]))

@@ -1,0 +1,188 @@
+"""replay: publish a rosbag2's messages over DDS at the recorded pace (stand-in for ros2 bag play).
+
+    ros2 run sysid_node replay BAG [--rate 2] [--topics /vibration /excitation] [--clock] [--loop]
+
+The raw CDR bytes of each message are published as they are (byte-exact, no re-encoding) with
+the rclpy class of the recorded type. Pacing follows the bag's log timestamps scaled by
+``--rate``. Before the first message the tool waits (bounded by ``--wait-subscribers``) until
+every replayed topic has a subscriber, and at the end until reliable subscribers acknowledged
+everything, so that a replay into a running node loses nothing at either end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from pathlib import Path
+
+from sysid_node.bag_io import BagError, iter_messages, list_topics, open_bag
+from sysid_node.tools import ToolError, fail, msg_class
+
+PROG = "replay"
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    ap.add_argument("bag_pos", nargs="?", type=Path, metavar="BAG", help="rosbag2 directory")
+    ap.add_argument("--bag", type=Path, help="rosbag2 directory (same as the positional BAG)")
+    ap.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1 = recorded)")
+    ap.add_argument("--topics", nargs="+", metavar="TOPIC", help="topics to replay (default all)")
+    ap.add_argument("--clock", action="store_true", help="publish /clock (for use_sim_time)")
+    ap.add_argument("--loop", action="store_true", help="start again at the end until stopped")
+    ap.add_argument(
+        "--qos",
+        choices=("reliable", "sensor"),
+        default="reliable",
+        help="reliable (default, deep queue, lossless) or sensor (best effort, sensor-data QoS)",
+    )
+    ap.add_argument("--depth", type=int, default=1000, help="publisher queue depth (reliable)")
+    ap.add_argument(
+        "--wait-subscribers",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="wait up to S seconds for a subscriber on every topic before starting (default 10)",
+    )
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
+    args = ap.parse_args(argv)
+    if args.bag is None:
+        args.bag = args.bag_pos
+    if args.bag is None:
+        ap.error("a bag is required (BAG or --bag BAG)")
+    if not args.rate > 0 or args.rate == float("inf"):
+        ap.error("--rate must be a positive finite number")
+    if args.depth < 1:
+        ap.error("--depth must be at least 1")
+    return args
+
+
+def _transient_local(bag: Path) -> set[str]:
+    """Topics recorded with a transient-local offered QoS (re-offered the same way)."""
+    from rosbags.interfaces import QosDurability
+
+    with open_bag(bag) as reader:
+        out = set()
+        for c in reader.connections:
+            profiles = getattr(c.ext, "offered_qos_profiles", None) or []
+            if profiles and all(q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles):
+                out.add(c.topic)
+        return out
+
+
+def run(args: argparse.Namespace) -> int:
+    available = list_topics(args.bag)
+    topics = list(args.topics) if args.topics else sorted(available)
+    missing = [t for t in topics if t not in available]
+    if missing:
+        raise BagError(
+            f"no topic {', '.join(missing)} in bag {args.bag}; "
+            f"available: {', '.join(sorted(available)) or '-'}"
+        )
+    classes = {t: msg_class(available[t][0]) for t in topics}
+    latched = _transient_local(args.bag)
+
+    import rclpy
+    from rclpy.duration import Duration
+    from rclpy.qos import (
+        DurabilityPolicy,
+        HistoryPolicy,
+        QoSProfile,
+        ReliabilityPolicy,
+        qos_profile_sensor_data,
+    )
+    from rclpy.signals import SignalHandlerOptions
+
+    stop = {"flag": False}
+
+    def on_signal(signum, frame) -> None:
+        stop["flag"] = True
+
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    node = rclpy.create_node("replay")
+    try:
+        pubs = {}
+        for t in topics:
+            if args.qos == "sensor" and t not in latched:
+                qos = qos_profile_sensor_data
+            else:
+                qos = QoSProfile(
+                    history=HistoryPolicy.KEEP_LAST,
+                    depth=1 if t in latched else args.depth,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL
+                    if t in latched
+                    else DurabilityPolicy.VOLATILE,
+                )
+            pubs[t] = node.create_publisher(classes[t], t, qos)
+        clock_pub = None
+        if args.clock:
+            from rosgraph_msgs.msg import Clock
+
+            clock_pub = node.create_publisher(Clock, "/clock", 10)
+            clock_msg = Clock()
+
+        deadline = time.monotonic() + max(0.0, args.wait_subscribers)
+        while not stop["flag"] and time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in pubs.values()):
+                break
+            time.sleep(0.05)
+        lonely = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        if lonely and not args.quiet:
+            print(f"[{PROG}] no subscriber on {', '.join(lonely)}; replaying anyway", flush=True)
+        if not lonely:
+            time.sleep(0.3)  # let the subscribers' side of the match settle too
+
+        sent = dict.fromkeys(topics, 0)
+        t_start = time.monotonic()
+        while not stop["flag"]:
+            wall0 = None
+            bag0 = 0
+            for conn, stamp, raw in iter_messages(args.bag, topics):
+                if stop["flag"]:
+                    break
+                if wall0 is None:
+                    wall0, bag0 = time.monotonic(), stamp
+                delay = wall0 + (stamp - bag0) * 1e-9 / args.rate - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                if clock_pub is not None:
+                    clock_msg.clock.sec, clock_msg.clock.nanosec = divmod(stamp, 1_000_000_000)
+                    clock_pub.publish(clock_msg)
+                pubs[conn.topic].publish(raw)
+                sent[conn.topic] += 1
+            if not args.loop:
+                break
+        if args.qos == "reliable" or latched:
+            for t, p in pubs.items():
+                if args.qos == "reliable" or t in latched:
+                    p.wait_for_all_acked(Duration(seconds=5))
+        took = time.monotonic() - t_start
+        if not args.quiet:
+            counts = ", ".join(f"{t} {n}" for t, n in sent.items())
+            print(f"[{PROG}] published {sum(sent.values())} messages in {took:.2f} s ({counts})")
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = _parse(argv)
+    except SystemExit as exit_:
+        return int(exit_.code or 0)
+    try:
+        return run(args)
+    except (BagError, ToolError) as err:
+        return fail(PROG, str(err))
+    except Exception as err:  # a CLI ends with one line, never a traceback
+        return fail(PROG, f"{type(err).__name__}: {err}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
