@@ -333,6 +333,8 @@ def _fmt(v: Any) -> str:
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run sysid_node sysid_node``."""
+    # hand the GIL over often, so subscriptions are served while the worker computes
+    sys.setswitchinterval(0.001)
     rclpy.init(args=args)
     node = None
     code = 0
