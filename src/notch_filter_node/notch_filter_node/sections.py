@@ -15,7 +15,9 @@ D -> 0 dB): that is how a notch fades in and out without changing its poles.
 direct form I: before each stretch of samples with one set of coefficients, the transposed-direct-
 form-II state that :func:`scipy.signal.sosfilt` needs is recomputed from the section's last two
 inputs and outputs, so a coefficient change never meets a state computed for other coefficients
-(no switching transient). Parameter changes over a block are ramped linearly in sub-blocks of
+(no switching transient). A section faded to 0 dB is the identity as a transfer function but
+still carries the decaying transient of its fade; it is skipped only once that has died out.
+Parameter changes over a block are ramped linearly in sub-blocks of
 ``substep`` samples, so the coefficients move by small steps, never at once.
 """
 
@@ -28,6 +30,9 @@ from scipy import signal
 
 #: Depths at or below this [dB] make a section the identity (bypassed).
 DEPTH_OFF_DB = 1e-6
+#: A bypassed section keeps running until the difference between its output and input memory
+#: (the decaying transient of its last coefficient changes) is below this fraction of the signal.
+SETTLED_REL = 1e-7
 
 
 def warp(f: np.ndarray | float, fs: float) -> np.ndarray:
@@ -278,7 +283,7 @@ class NotchBank:
                 and zp0[k] == zp1[k]
                 and zz0[k] == zz1[k]
             )
-            if steady and new.depth_db[k] <= DEPTH_OFF_DB:
+            if steady and new.depth_db[k] <= DEPTH_OFF_DB and self._settled(k):
                 self._remember(k, y, y)
                 continue
             if steady:
@@ -298,6 +303,13 @@ class NotchBank:
         y = y.copy() if y is u else y
         y[bad] = np.nan
         return y
+
+    def _settled(self, k: int) -> bool:
+        """True when a section's memory has no transient left (output memory equals input
+        memory): an identity section may then be skipped without a step in the output."""
+        xm, ym = self._xm[k], self._ym[k]
+        scale = max(float(np.max(np.abs(xm))), float(np.max(np.abs(ym))), 1e-300)
+        return float(np.max(np.abs(xm - ym))) <= SETTLED_REL * scale
 
     def _run(self, k: int, sos: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One section over a stretch with fixed coefficients, from its direct-form-I memory."""
