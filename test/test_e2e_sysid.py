@@ -70,6 +70,40 @@ def _start_time(bag: Path) -> int:
     raise AssertionError("empty bag")
 
 
+def _end_time(bag: Path) -> int:
+    sig = bag_io.read_signals(bag, ["/vibration"])["/vibration"]
+    return int(round(sig.t[-1] * 1e9))
+
+
+def _wait_for_estimate(stamp_ns: int, timeout: float) -> None:
+    """Wait until /modal_estimate reaches ``stamp_ns`` (the node may lag behind the replay)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from sysid_node.node import ESTIMATE_QOS
+
+    from sysid_msgs.msg import ModalEstimate
+
+    os.environ.update(_env())
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("e2e_watch", context=ctx)
+    last = [0]
+    node.create_subscription(
+        ModalEstimate, "/modal_estimate", lambda m: last.__setitem__(0, mc.stamp_ns(m.header)),
+        ESTIMATE_QOS,
+    )
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    deadline = time.monotonic() + timeout
+    try:
+        while last[0] < stamp_ns and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
 def _read_estimates(bag: Path) -> list:
     ts = bag_io.typestore()
     return [
@@ -109,7 +143,8 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
             capture_output=True, text=True, env=_env(), timeout=180,
         )
         assert replay.returncode == 0, replay.stderr[-2000:]
-        time.sleep(1.5)
+        _wait_for_estimate(_end_time(paper_bag) - 200_000_000, timeout=60.0)
+        time.sleep(1.0)
     finally:
         _stop(record)
         code = _stop(node)

@@ -6,14 +6,19 @@ excitation (``input_topic``, default ``/excitation``); publishes ``sysid_msgs/Mo
 ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics``. All numerics are in
 :class:`sysid_node.pipeline.Pipeline`, which the offline tool drives identically.
 
-Threads: subscription callbacks only convert a message to arrays and queue it; a worker thread
-drains the queue in blocks, runs the pipeline (numpy releases the GIL in the heavy parts) and
-publishes, so a realization never holds up the subscriptions.
+Processes: subscription callbacks only convert a message to arrays and queue it; a sender
+thread hands the queued blocks to a worker *process* that runs the pipeline (so the estimator
+never holds the GIL the subscriptions need, and uses the second core); a receiver thread
+publishes what comes back. When the worker falls more than ``MAX_BACKLOG_S`` seconds of data
+behind (or ``MAX_BACKLOG_SAMPLES``), whole batches are dropped and counted
+(``overload_dropped_messages``) rather than lost silently in the DDS queues.
 """
 
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
+import queue
 import sys
 import threading
 import time
@@ -45,7 +50,7 @@ from rclpy.qos import (
 
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
-from sysid_node.pipeline import EstimateRecord, Pipeline
+from sysid_node.pipeline import EstimateRecord, worker_main
 
 ESTIMATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -53,8 +58,13 @@ ESTIMATE_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+#: Data the worker may be behind before batches are dropped: this many seconds of data or
+#: samples (over both streams), whichever is more.
+MAX_BACKLOG_S = 60.0
+MAX_BACKLOG_SAMPLES = 200_000
 BAD_INPUT_KEYS = (
     "malformed", "wrong_channels", "nonfinite", "duplicate", "late", "rate_rejected",
+    "unreadable", "overload_dropped_messages",
 )
 
 
@@ -116,19 +126,19 @@ class SysidNode(Node):
         reason = P.validate_set(values)
         if reason:
             raise StartupError(f"invalid parameters: {reason}")
-        self._lock = threading.Lock()
+        self.values = values
         self._queue: deque = deque()
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._arrivals: Counter[str] = Counter()
         self._last_arrival = math.nan
         self._last_record: EstimateRecord | None = None
-        self._last_publish_wall = math.nan
         self._latency = math.nan
-        try:
-            self.pipeline = Pipeline(values, log=self._log)
-        except ImportError as err:
-            raise StartupError(f"the DSRA core cannot be imported: {err}") from None
+        self._status: dict[str, Any] = {"counters": {}, "rates": {}, "fs": math.nan,
+                                        "mode": "pending", "cost": math.nan,
+                                        "lambda": values["forgetting_factor"], "values": values}
+        self._in_flight = 0  # samples sent to the worker and not yet processed
+        self._start_worker(values)
         self.estimate_pub = self.create_publisher(
             mc_estimate_type(), "/modal_estimate", ESTIMATE_QOS
         )
@@ -139,14 +149,31 @@ class SysidNode(Node):
         self._diag_timer = self.create_timer(1.0 / values["diagnostics_rate"], self._diagnostics)
         self._diag_prev: dict[str, int] = {}
         self._diag_prev_t = time.monotonic()
-        self._worker = threading.Thread(target=self._work, name="sysid_worker", daemon=True)
-        self._worker.start()
+        self._sender = threading.Thread(target=self._send_loop, name="sysid_send", daemon=True)
+        self._receiver = threading.Thread(target=self._receive_loop, name="sysid_recv",
+                                          daemon=True)
+        self._sender.start()
+        self._receiver.start()
         mode = "output-only" if values["output_only"] or not values["input_topic"] else (
             f"inputs from {values['input_topic']} ({values['input_type']})")
         self.get_logger().info(
             f"identifying modes from {values['output_topic']} ({values['output_type']}), {mode}; "
             f"publishing /modal_estimate at {values['publish_rate']:g} Hz of data time"
         )
+
+    def _start_worker(self, values: dict[str, Any]) -> None:
+        ctx = mp.get_context("spawn")  # never fork a process that runs DDS threads
+        self._inbox, self._outbox = ctx.Queue(), ctx.Queue()
+        self._proc = ctx.Process(target=worker_main, args=(values, self._inbox, self._outbox),
+                                 name="sysid_worker", daemon=True)
+        self._proc.start()
+        try:
+            tag, error = self._outbox.get(timeout=60.0)
+        except queue.Empty:
+            error = "the worker process did not start within 60 s"
+        if error:
+            self._proc.terminate()
+            raise StartupError(f"the estimator cannot start: {error}")
 
     # ---- parameters ----
     def _coerce_int_overrides(self) -> None:
@@ -160,14 +187,19 @@ class SysidNode(Node):
                 overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        changes = {p.name: p.value for p in parameters}
-        old = dict(self.pipeline.values)
-        with self._lock:
-            reason = self.pipeline.set_parameters(changes)
+        # parameters rclpy owns (use_sim_time, ...) are not ours to check
+        changes = {p.name: p.value for p in parameters if p.name in P.SPECS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        old = dict(self.values)
+        new = {**old, **changes}
+        fs = self._status["fs"] if new["sample_rate"] == old["sample_rate"] else math.nan
+        reason = P.validate_set(new, sample_rate=fs)
         if reason:
             self.get_logger().warning(f"parameter change rejected: {reason}")
             return SetParametersResult(successful=False, reason=reason)
-        new = self.pipeline.values
+        self.values = new
+        self._inbox.put(("params", changes))
         topic_keys = ("output_topic", "output_type", "input_topic", "input_type", "output_only",
                       "qos", "qos_depth", "imu_axes")
         if any(old[k] != new[k] for k in topic_keys):
@@ -209,54 +241,61 @@ class SysidNode(Node):
         self._wake.set()
 
     # ---- processing ----
-    def _work(self) -> None:
+    def _send_loop(self) -> None:
+        """Hand queued message blocks to the worker process every few milliseconds."""
         while not self._stop.is_set():
             self._wake.wait(0.05)
+            time.sleep(0.002)  # let a burst of messages gather
             self._wake.clear()
-            if not self._queue:
-                continue
             items = []
             while self._queue:
                 items.append(self._queue.popleft())
-            try:
-                with self._lock:
-                    records = self._process(items)
-            except Exception as err:  # keep running on anything the data throws at us
-                self.get_logger().error(f"processing failed, estimator reset: {err!r}",
-                                        throttle_duration_sec=5.0)
-                with self._lock:
-                    self.pipeline.reset()
+            if not items:
                 continue
+            fs = self._status["fs"]
+            limit = max(MAX_BACKLOG_S * (fs if math.isfinite(fs) else 0.0), MAX_BACKLOG_SAMPLES)
+            if self._in_flight > limit:
+                self._arrivals["overload_dropped_messages"] += len(items)
+                self.get_logger().warning(
+                    f"estimator {self._in_flight} samples behind: {len(items)} message(s) "
+                    "dropped", throttle_duration_sec=5.0)
+                continue
+            n = sum(len(t) for _, t, _ in items)
+            self._in_flight += n
+            self._inbox.put(("data", items, n))
+
+    def _receive_loop(self) -> None:
+        """Publish the worker's estimates, log its lines, keep its status."""
+        while not self._stop.is_set():
+            try:
+                records, lines, status, n_msgs = self._outbox.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            except (EOFError, OSError, ValueError):
+                break
+            self._in_flight -= n_msgs
+            self._status = status
+            for line in lines:
+                if line.startswith("ERROR "):
+                    self.get_logger().error(line[6:], throttle_duration_sec=5.0)
+                else:
+                    self.get_logger().info(line)
             for r in records:
                 self._publish(r)
-
-    def _process(self, items: list) -> list[EstimateRecord]:
-        for stream in ("output", "input"):
-            blocks = [(t, v) for s, t, v in items if s == stream]
-            push = self.pipeline.push_output if stream == "output" else self.pipeline.push_input
-            for t, v in mc.stack_blocks(blocks):
-                push(t, v)
-        return self.pipeline.step()
 
     def _publish(self, r: EstimateRecord) -> None:
         self.estimate_pub.publish(mc.estimate_msg(r))
         self._last_record = r
         now = self.get_clock().now().nanoseconds
         self._latency = (now - r.stamp_ns) * 1e-9
-        self._last_publish_wall = time.monotonic()
 
     # ---- diagnostics ----
     def _diagnostics(self) -> None:
         now = time.monotonic()
         dt = max(now - self._diag_prev_t, 1e-6)
-        with self._lock:
-            pl = self.pipeline
-            counters = pl.counters
-            rates = pl.ingest.rates()
-            values = dict(pl.values)
-            fs, mode = pl.sample_rate, pl.ingest.mode
-            cost = pl.update_seconds / pl.update_samples if pl.update_samples else math.nan
-            est_ok = pl.estimator is not None
+        st = self._status
+        counters, rates, values = st["counters"], st["rates"], self.values
+        fs, mode, cost = st["fs"], st["mode"], st["cost"]
         arrivals = dict(self._arrivals)
         r = self._last_record
         kv: dict[str, Any] = {
@@ -264,9 +303,9 @@ class SysidNode(Node):
             "input_topic": values["input_topic"] if mode == "io" else "",
             "mode": mode,
             "sample_rate_hz": fs,
-            "output_rate_hz": rates["output"],
-            "input_rate_hz": rates["input"],
-            "forgetting_factor": pl.forgetting_factor,
+            "output_rate_hz": rates.get("output", math.nan),
+            "input_rate_hz": rates.get("input", math.nan),
+            "forgetting_factor": st["lambda"],
             "converged": bool(r.converged) if r else False,
             "samples_used": r.samples_used if r else 0,
             "modes_tracked": sum(m.status == "tracked" for m in r.modes) if r else 0,
@@ -274,7 +313,7 @@ class SysidNode(Node):
             "update_cost_us_per_sample": cost * 1e6,
             "realtime_factor": 1.0 / (cost * fs) if cost > 0 and fs > 0 else math.nan,
             "estimate_latency_s": self._latency,
-            "queued_messages": len(self._queue),
+            "queued_messages": len(self._queue) + self._in_flight,
         }
         for k, v in sorted(arrivals.items()):
             kv[k] = v
@@ -282,8 +321,8 @@ class SysidNode(Node):
                 (v - self._diag_prev.get(k, 0)) / dt if k.endswith("_messages") else None)
         for k, v in sorted(counters.items()):
             kv[k] = v
-        bad_now = sum(v for k, v in counters.items() if k.endswith(BAD_INPUT_KEYS) or
-                      k in ("gaps", "time_resets"))
+        bad_now = sum(v for k, v in {**counters, **arrivals}.items()
+                      if k.endswith(BAD_INPUT_KEYS) or k in ("gaps", "time_resets"))
         bad_before = sum(v for k, v in self._diag_prev.items() if k.endswith(BAD_INPUT_KEYS) or
                          k in ("gaps", "time_resets"))
         stale = not math.isfinite(self._last_arrival) or now - self._last_arrival > 2.0
@@ -291,7 +330,7 @@ class SysidNode(Node):
             level, message = DiagnosticStatus.STALE, "no data received"
         elif bad_now > bad_before:
             level, message = DiagnosticStatus.WARN, f"{bad_now - bad_before} bad input event(s)"
-        elif not (r and r.converged) or not est_ok:
+        elif not (r and r.converged):
             level, message = DiagnosticStatus.WARN, "not converged yet"
         else:
             level, message = DiagnosticStatus.OK, "tracking"
@@ -312,9 +351,21 @@ class SysidNode(Node):
         self.get_logger().info(text)
 
     def stop(self) -> None:
+        """Stop the threads and the worker process (within a few seconds)."""
         self._stop.set()
         self._wake.set()
-        self._worker.join(timeout=5.0)
+        self._sender.join(timeout=2.0)
+        try:
+            self._inbox.put(None)
+        except (OSError, ValueError):
+            pass
+        self._proc.join(timeout=3.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=2.0)
+        self._receiver.join(timeout=2.0)
+        self._inbox.cancel_join_thread()
+        self._outbox.cancel_join_thread()
 
 
 def mc_estimate_type():

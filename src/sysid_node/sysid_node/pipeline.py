@@ -398,6 +398,79 @@ class Pipeline:
                 est.realization_interval = self._realization_interval()
 
 
+def worker_status(pl: Pipeline) -> dict[str, Any]:
+    cost = pl.update_seconds / pl.update_samples if pl.update_samples else math.nan
+    return {
+        "counters": pl.counters,
+        "rates": pl.ingest.rates(),
+        "fs": pl.sample_rate,
+        "mode": pl.ingest.mode,
+        "cost": cost,
+        "lambda": pl.forgetting_factor,
+        "values": dict(pl.values),
+    }
+
+
+def worker_main(values: dict[str, Any], inbox, outbox) -> None:
+    """Body of the node's worker process (multiprocessing, spawn): a :class:`Pipeline` fed
+    with the message blocks the node sends.
+
+    Inbox items: ``("data", [(stream, stamps, values), ...], n_samples)``,
+    ``("params", changes)``, ``("reset", None)``, ``None`` (stop). Outbox items:
+    ``(records, log_lines, status, n_samples)``; the first item is ``("ready", error)``.
+    """
+    import queue
+    import signal
+
+    from sysid_node.msg_convert import stack_blocks
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us, not the terminal
+    lines: list[str] = []
+    try:
+        pl = Pipeline(values, log=lines.append)
+    except Exception as err:
+        outbox.put(("ready", f"{type(err).__name__}: {err}"))
+        return
+    outbox.put(("ready", ""))
+    while True:
+        item = inbox.get()
+        if item is None:
+            break
+        batch = [item]
+        while True:  # take everything already waiting: fewer, larger blocks
+            try:
+                nxt = inbox.get_nowait()
+            except queue.Empty:
+                break
+            if nxt is None:
+                inbox.put(None)
+                break
+            batch.append(nxt)
+        records: list[EstimateRecord] = []
+        n_msgs = 0
+        for kind, payload, *rest in batch:
+            try:
+                if kind == "data":
+                    n_msgs += rest[0]
+                    for stream in ("output", "input"):
+                        push = pl.push_output if stream == "output" else pl.push_input
+                        blocks = [(t, v) for s_, t, v in payload if s_ == stream]
+                        for t, v in stack_blocks(blocks):
+                            push(t, v)
+                    records += pl.step()
+                elif kind == "params":
+                    reason = pl.set_parameters(payload)
+                    if reason:
+                        lines.append(f"parameter change not applied: {reason}")
+                elif kind == "reset":
+                    pl.reset()
+            except Exception as err:  # keep running on anything the data throws at us
+                lines.append(f"ERROR processing failed, estimator reset: {err!r}")
+                pl.reset()
+        outbox.put((records, lines[:], worker_status(pl), n_msgs))
+        lines.clear()
+
+
 def _model_order(est: Any) -> int:
     """State dimension of the latest realized model (0 before the first)."""
     model = getattr(est, "model", None)

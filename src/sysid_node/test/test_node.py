@@ -147,7 +147,7 @@ class Harness:
                 self.pub_u.publish(mc.signal_block_msg(t, 1 / FS, u[a : a + block]))
             time.sleep(block / FS / speed)
 
-    def wait_estimate(self, stamp_ns: int, timeout: float = 10.0):
+    def wait_estimate(self, stamp_ns: int, timeout: float = 60.0):
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.estimates and mc.stamp_ns(self.estimates[-1].header) >= stamp_ns:
