@@ -90,7 +90,7 @@ class Progress:
         self._t0 = time.monotonic()
 
     def update(self, done: int, note: str = "") -> None:
-        if not self.enabled:
+        if not self.enabled or self._last >= 1.0:
             return
         frac = min(done / self.total, 1.0)
         if frac - self._last < 0.01 and frac < 1.0:
