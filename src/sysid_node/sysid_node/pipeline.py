@@ -157,6 +157,7 @@ class Pipeline:
             max_modes=v["max_modes"],
         )
         self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
+        self._tracked: list = []
         self._layout = (n_outputs, n_inputs)
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
         self.log(
@@ -175,11 +176,9 @@ class Pipeline:
             accepted = set()
         v = self.values
         options = {
-            ("frequency_tolerance", "freq_tol", "frequency_gate"): v[
-                "tracking_frequency_tolerance"
-            ],
-            ("confirm_count", "confirm", "confirm_updates"): v["tracking_confirm_count"],
-            ("lost_timeout", "lost_after", "lost_timeout_s"): v["tracking_lost_timeout"],
+            ("frequency_gate", "frequency_tolerance"): v["tracking_frequency_tolerance"],
+            ("confirm_hits", "confirm_count"): v["tracking_confirm_count"],
+            ("lost_timeout_s", "lost_timeout"): v["tracking_lost_timeout"],
         }
         kw: dict[str, Any] = {}
         for names, value in options.items():
@@ -286,18 +285,26 @@ class Pipeline:
         est.update(np.full((1, nu), np.nan) if nu else None, np.full((1, ny), np.nan))
 
     def _update(self, c: Chunk) -> None:
+        """Feed a piece to the estimator; every model realized in it updates the tracker, at
+        the stamp of the sample it was realized after."""
+        est = self.estimator
         t0 = time.perf_counter()
-        self.estimator.update(c.u, c.y)
+        s0 = int(getattr(est, "samples_seen", self._samples))
+        models = est.update(c.u, c.y) or []
+        for mdl in models:
+            k = round(float(getattr(mdl, "time_s", math.nan)) * self.sample_rate) - s0 - 1
+            k = min(max(k, 0), len(c) - 1) if math.isfinite(k) else len(c) - 1
+            self._track(list(getattr(mdl, "modes", [])), int(c.stamps_ns[k]) * 1e-9)
         dt = time.perf_counter() - t0
         self.update_seconds += dt
         self.update_samples += len(c)
         self.last_update_cost = dt / len(c)
         self._samples += len(c)
 
-    def _record(self, stamp_ns: int) -> EstimateRecord:
-        est, v = self.estimator, self.values
-        t0 = time.perf_counter()
-        modes = list(est.modes())
+    def _track(self, modes: list, t: float) -> None:
+        """Spurious-mode rejection with the current (live) band, bounds and mode count, then
+        the tracker."""
+        v = self.values
         fmin, fmax = P.effective_band(v, self.sample_rate)
         modes = [
             m for m in modes
@@ -305,9 +312,12 @@ class Pipeline:
             and v["damping_min"] <= m.damping_ratio <= v["damping_max"]
         ]
         modes = sorted(modes, key=lambda m: -_finite(m.amplitude))[: v["max_modes"]]
-        tracked = self.tracker.update(modes, stamp_ns * 1e-9)
-        self.update_seconds += time.perf_counter() - t0
-        out = [self._mode_record(tm, stamp_ns * 1e-9) for tm in tracked]
+        self._tracked = self.tracker.update(modes, t)
+
+    def _record(self, stamp_ns: int) -> EstimateRecord:
+        est, v = self.estimator, self.values
+        t = stamp_ns * 1e-9
+        out = [self._mode_record(tm, t) for tm in self._tracked]
         out.sort(key=lambda m: m.frequency_hz)
         pe = np.asarray(_get(est, "prediction_error_rms", default=np.full(self._layout[0], np.nan)),
                         dtype=float).reshape(-1)
@@ -326,7 +336,11 @@ class Pipeline:
         )
 
     def _mode_record(self, tm: Any, t: float) -> ModeRecord:
-        m = getattr(tm, "mode", None) or getattr(tm, "modal", None) or tm
+        m = tm
+        for name in ("mode", "modal", "params", "parameters", "modal_parameters", "latest"):
+            if getattr(tm, name, None) is not None and hasattr(getattr(tm, name), "frequency_hz"):
+                m = getattr(tm, name)
+                break
         status = getattr(tm, "status", "tentative")
         if not isinstance(status, str):
             status = STATUS_NAMES[int(status)]
@@ -372,9 +386,9 @@ class Pipeline:
         est, v, fs = self.estimator, self.values, self.sample_rate
         if any(k.startswith("tracking_") for k in changes) and self.tracker is not None:
             for names, key in (
-                (("frequency_tolerance", "freq_tol"), "tracking_frequency_tolerance"),
-                (("confirm_count", "confirm"), "tracking_confirm_count"),
-                (("lost_timeout", "lost_after"), "tracking_lost_timeout"),
+                (("frequency_gate", "frequency_tolerance"), "tracking_frequency_tolerance"),
+                (("confirm_hits", "confirm_count"), "tracking_confirm_count"),
+                (("lost_timeout_s", "lost_timeout"), "tracking_lost_timeout"),
             ):
                 for n in names:
                     if hasattr(self.tracker, n):
