@@ -188,7 +188,7 @@ def test_topic_selection_and_record_duration(tmp_path: Path) -> None:
             "-o",
             str(out),
             "--duration",
-            "6",
+            "7",
         ],
         tmp_path / "record.log",
     )
@@ -236,3 +236,37 @@ def test_truncated_bag_one_line(tmp_path: Path) -> None:
     res = _run(["sysid_node.tools.replay", str(src), "--wait-subscribers", "0"], timeout=30)
     assert res.returncode != 0
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+
+
+def test_loop_with_sensor_qos_until_sigint(tmp_path: Path) -> None:
+    src = _source_bag(tmp_path / "src")
+    out = tmp_path / "rec"
+    rec = _start(["sysid_node.tools.record", "/vibration", "-o", str(out)], tmp_path / "rec.log")
+    rep = _start(
+        [
+            "sysid_node.tools.replay",
+            str(src),
+            "--rate",
+            "4",
+            "--loop",
+            "--qos",
+            "sensor",
+            "--topics",
+            "/vibration",
+        ],
+        tmp_path / "replay.log",
+    )
+    try:
+        deadline = time.monotonic() + 20.0
+        while "recording /vibration" not in (tmp_path / "rec.log").read_text():
+            assert time.monotonic() < deadline, "record never subscribed"
+            time.sleep(0.1)
+        time.sleep(3.0)  # 0.5 s per pass
+        assert rep.poll() is None, (tmp_path / "replay.log").read_text()
+    finally:
+        assert _stop(rep) == 0
+        assert _stop(rec) == 0
+    line = (tmp_path / "replay.log").read_text().strip().splitlines()[-1]
+    assert int(line.split("published ")[1].split()[0]) > 400  # more than two passes
+    assert "best effort" in (tmp_path / "rec.log").read_text()
+    assert bag_io.list_topics(out)["/vibration"][1] > 200
