@@ -259,8 +259,8 @@ class Pipeline:
         start = 0
         for i in cross:
             # feed everything up to and including sample i, then make the record
+            self._pending.append(_slice(c, start, i + 1))
             self._flush_pending()
-            self._update(_slice(c, start, i + 1))
             start = i + 1
             records.append(self._record(int(c.stamps_ns[i])))
         if start < len(c):
@@ -269,10 +269,21 @@ class Pipeline:
         return records
 
     def _flush_pending(self) -> None:
-        for p in self._pending:
-            if len(p):
-                self._update(p)
+        """Feed the held samples (all of one segment) to the estimator as ONE block, so the
+        estimator sees the same blocks however the messages were chunked."""
+        parts = [p for p in self._pending if len(p)]
         self._pending.clear()
+        if not parts:
+            return
+        if len(parts) == 1:
+            self._update(parts[0])
+            return
+        self._update(Chunk(
+            stamps_ns=np.concatenate([p.stamps_ns for p in parts]),
+            y=np.concatenate([p.y for p in parts]),
+            u=None if parts[0].u is None else np.concatenate([p.u for p in parts]),
+            new_segment=parts[0].new_segment,
+        ))
 
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
