@@ -135,7 +135,7 @@ def _resolve(path: str | os.PathLike) -> Path:
     p = bag_exists(path)
     if p.is_file():
         if p.suffix == ".bag":
-            return p  # ROS 1 bag, AnyReader reads it
+            raise BagError(f"ROS 1 bag (convert it to rosbag2 with rosbags-convert first): {p}")
         if (p.parent / "metadata.yaml").is_file():
             p = p.parent
         else:

@@ -296,3 +296,10 @@ def test_committed_bag_is_what_the_generator_makes(tmp_path: Path) -> None:
     assert (tmp_path / "paper_example.truth.json").read_text() == (
         BAGS / "paper_example.truth.json"
     ).read_text()
+
+
+def test_ros1_bag_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "old.bag").write_bytes(b"#ROSBAG V2.0\n")
+    with pytest.raises(BagError) as err:
+        bag_io.read_signals(tmp_path / "old.bag")
+    assert "rosbags-convert" in _one_line(err)
