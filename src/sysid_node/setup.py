@@ -29,6 +29,7 @@ setup(
             "record = sysid_node.tools.record:main",
             "sysid_node = sysid_node.node:main",
             "offline = sysid_node.tools.offline:main",
+            "validate = sysid_node.tools.validate:main",
         ],
     },
 )

@@ -1,0 +1,298 @@
+"""Residual analysis: fit, whiteness, residual-input cross-correlation, spectrum and coherence.
+
+Standard model-validation tests (Ljung, *System Identification*, ch. 16) with their bounds:
+
+* NRMSE fit per channel, ``100 (1 - ||y - yhat|| / ||y - mean(y)||)``;
+* whiteness: normalised autocorrelation r(k), k = 1..L, against the 99 % bound 2.576 / sqrt(N)
+  and the Ljung-Box portmanteau Q = N (N + 2) sum r(k)^2 / (N - k) ~ chi2(L);
+* residual-input cross-correlation R_eu(tau) = E[e_t u_{t - tau}], tau = -L..L: positive lags
+  are past inputs (a wrong or delayed input path), negative lags future inputs (feedback);
+  a portmanteau N sum R^2 ~ chi2 on each side (the input is prewhitened by an AR fit first);
+* residual spectrum (Welch) against its noise floor (running median) with the chi-square bound of
+  the Welch estimate, and the magnitude-squared coherence with each input and its 99 % bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal, stats
+
+Z99 = 2.5758293035489  # two-sided 99 % normal quantile
+ALPHA = 0.01
+
+
+def nrmse_fit(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
+    """NRMSE fit [%] per channel: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    y, yhat = np.atleast_2d(y.T).T, np.atleast_2d(yhat.T).T
+    num = np.linalg.norm(y - yhat, axis=0)
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    return 100.0 * (1.0 - num / np.where(den > 0, den, np.nan))
+
+
+def rms(x: np.ndarray) -> np.ndarray:
+    """RMS per column."""
+    return np.sqrt(np.mean(np.square(x), axis=0))
+
+
+def _xcorr_fft(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation c(tau) = sum_t a_t b_{t - tau} / (N sa sb), tau = -L..L."""
+    n = a.size
+    a = a - a.mean()
+    b = b - b.mean()
+    nfft = 1 << int(np.ceil(np.log2(2 * n)))
+    full = np.fft.irfft(np.fft.rfft(a, nfft) * np.conj(np.fft.rfft(b, nfft)), nfft)
+    lags = np.arange(-max_lag, max_lag + 1)
+    c = full[lags % nfft]
+    den = n * a.std() * b.std()
+    return c / den if den > 0 else np.zeros_like(c)
+
+
+@dataclass
+class WhitenessTest:
+    """Autocorrelation of one residual channel, its 99 % bound and the Ljung-Box test."""
+
+    lags: np.ndarray
+    r: np.ndarray
+    bound: float
+    q: float
+    p_value: float
+
+    @property
+    def passed(self) -> bool:
+        return bool(self.p_value >= ALPHA)
+
+    @property
+    def exceedances(self) -> int:
+        return int(np.sum(np.abs(self.r) > self.bound))
+
+
+def whiteness(e: np.ndarray, max_lag: int = 20) -> WhitenessTest:
+    """Residual autocorrelation r(1..L) with the 99 % bound and the Ljung-Box statistic."""
+    e = np.asarray(e, float).ravel()
+    n = e.size
+    r = _xcorr_fft(e, e, max_lag)[max_lag + 1 :]
+    k = np.arange(1, max_lag + 1)
+    q = float(n * (n + 2) * np.sum(r**2 / (n - k)))
+    return WhitenessTest(k, r, Z99 / np.sqrt(n), q, float(stats.chi2.sf(q, max_lag)))
+
+
+def prewhiten(u: np.ndarray, order: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """AR(order) least-squares fit of u; returns (innovations of u, AR coefficients)."""
+    u = np.asarray(u, float).ravel()
+    u = u - u.mean()
+    order = min(order, max(1, u.size // 10))
+    reg = np.lib.stride_tricks.sliding_window_view(u, order)[:-1][:, ::-1]
+    a, *_ = np.linalg.lstsq(reg, u[order:], rcond=None)
+    w = u.copy()
+    w[order:] = u[order:] - reg @ a
+    w[:order] = 0.0
+    return w, a
+
+
+@dataclass
+class CrossCorrelationTest:
+    """R_eu(tau) of one residual/input pair (input prewhitened), bound and one-sided tests."""
+
+    lags: np.ndarray
+    r: np.ndarray
+    bound: float
+    p_past: float  # portmanteau over tau = 0..L (past and present inputs)
+    p_future: float  # portmanteau over tau = -L..-1 (future inputs: feedback)
+
+    @property
+    def passed(self) -> bool:
+        return bool(min(self.p_past, self.p_future) >= ALPHA / 2)
+
+    def peak(self, side: str) -> tuple[int, float]:
+        """(lag, value) of the largest |R| on 'past' (tau >= 0) or 'future' (tau < 0) lags."""
+        sel = self.lags >= 0 if side == "past" else self.lags < 0
+        k = int(np.argmax(np.abs(self.r[sel])))
+        return int(self.lags[sel][k]), float(self.r[sel][k])
+
+
+def cross_correlation(
+    e: np.ndarray, u: np.ndarray, max_lag: int = 20, ar_order: int = 10
+) -> CrossCorrelationTest:
+    """R_eu(tau) = corr(e_t, w_{t - tau}), w the prewhitened input, with 99 % bounds."""
+    e = np.asarray(e, float).ravel()
+    w, a = prewhiten(u, ar_order)
+    # filter e with the same whitening filter so that R_eu is the impulse-response shape
+    ef = signal.lfilter(np.concatenate([[1.0], -a]), [1.0], e - e.mean())
+    k0 = a.size
+    r = _xcorr_fft(ef[k0:], w[k0:], max_lag)
+    n = e.size - k0
+    lags = np.arange(-max_lag, max_lag + 1)
+    q_past = float(n * np.sum(r[lags >= 0] ** 2))
+    q_fut = float(n * np.sum(r[lags < 0] ** 2))
+    return CrossCorrelationTest(
+        lags,
+        r,
+        Z99 / np.sqrt(n),
+        float(stats.chi2.sf(q_past, max_lag + 1)),
+        float(stats.chi2.sf(q_fut, max_lag)),
+    )
+
+
+def higher_order_correlation(
+    e: np.ndarray, z: np.ndarray, max_lag: int = 10
+) -> tuple[np.ndarray, float, float]:
+    """Billings-Voon type test corr(e_t, z'_{t - k}), k = 1..L, z' the cubic Hermite term.
+
+    ``z`` is a measured signal (an output channel); He3(z / s) = (z / s)^3 - 3 z / s is
+    uncorrelated with z itself for a Gaussian z, so a significant correlation of the one-step
+    residual with its past values points to a missing cubic term. Returns (r, bound, p-value).
+    """
+    e = np.asarray(e, float).ravel()
+    z = np.asarray(z, float).ravel()
+    s = z.std() if z.std() > 0 else 1.0
+    zn = (z - z.mean()) / s
+    he3 = zn**3 - 3.0 * zn
+    # remove the linear part left by a non-Gaussian z
+    he3 = he3 - zn * (he3 @ zn) / (zn @ zn)
+    r = _xcorr_fft(e, he3, max_lag)[max_lag + 1 :]
+    n = e.size
+    q = float(n * np.sum(r**2))
+    return r, Z99 / np.sqrt(n), float(stats.chi2.sf(q, max_lag))
+
+
+def error_windows(e: np.ndarray, fs: float, window_s: float | None = None) -> tuple:
+    """RMS of the residual per time window: (window start times [s] from 0, rms (W, l))."""
+    e = np.atleast_2d(np.asarray(e, float).T).T
+    n = e.shape[0]
+    w = int(round((window_s or max(n / fs / 20, 1.0 / fs)) * fs))
+    w = max(1, min(w, n))
+    k = n // w
+    blocks = e[: k * w].reshape(k, w, -1)
+    return np.arange(k) * w / fs, np.sqrt(np.mean(blocks**2, axis=1))
+
+
+@dataclass
+class Spectrum:
+    """Welch PSD of the residual, its (white) noise floor and the 99.9 % chi-square bound."""
+
+    f: np.ndarray
+    psd: np.ndarray  # (F, l)
+    floor: np.ndarray  # (F, l)
+    bound_factor: float  # psd / floor above this is a significant narrow-band excess
+    resolution_hz: float
+
+
+def welch_nperseg(n: int, fs: float, min_res_hz: float | None = None) -> int:
+    """Segment length: about 8 averages, at most 1024 samples."""
+    seg = 1 << int(np.floor(np.log2(max(n // 4, 16))))
+    return int(min(seg, 1024, n))
+
+
+def residual_spectrum(e: np.ndarray, fs: float, nperseg: int | None = None) -> Spectrum:
+    """Welch PSD (Hann, 50 % overlap, zero-padded x4) and the white-residual noise floor."""
+    e = np.atleast_2d(np.asarray(e, float).T).T
+    n = e.shape[0]
+    nper = nperseg or welch_nperseg(n, fs)
+    f, p = signal.welch(e, fs=fs, nperseg=nper, nfft=4 * nper, axis=0, detrend="constant")
+    # floor: the level of a white residual (what a correct innovation model leaves), robust to
+    # peaks: the median over frequency; the median of a chi2(2)/2 variable is ln 2 times its mean
+    floor = np.broadcast_to(np.median(p, axis=0, keepdims=True) / np.log(2.0), p.shape).copy()
+    k_avg = max(1, int(2 * n / nper) - 1)  # overlapping Hann segments
+    dof = 2 * k_avg
+    bound = float(stats.chi2.ppf(0.999, dof) / dof)
+    return Spectrum(f, p, floor, bound, fs / nper)
+
+
+def _running_median(x: np.ndarray, width: int) -> np.ndarray:
+    pad = width // 2
+    xp = np.pad(x, pad, mode="reflect")
+    win = np.lib.stride_tricks.sliding_window_view(xp, width)
+    return np.median(win, axis=1)
+
+
+@dataclass
+class Peak:
+    """A narrow-band excess of the residual spectrum."""
+
+    channel: int
+    frequency_hz: float
+    ratio: float  # peak psd / floor
+    damping: float  # from the half-power width, NaN if unresolved
+    band_power: float  # residual power within the half-power band
+
+
+def spectral_peaks(
+    spec: Spectrum, fmin: float = 0.0, margin: float = 2.0, max_peaks: int = 6
+) -> list[Peak]:
+    """Peaks with psd / floor above ``margin`` x the 99.9 % bound, strongest first."""
+    out: list[Peak] = []
+    df = spec.f[1] - spec.f[0]
+    for c in range(spec.psd.shape[1]):
+        p, fl = spec.psd[:, c], spec.floor[:, c]
+        ratio = p / np.maximum(fl, 1e-300)
+        idx, _ = signal.find_peaks(p)
+        idx = idx[
+            (spec.f[idx] > max(fmin, 2 * spec.resolution_hz))
+            & (ratio[idx] > margin * spec.bound_factor)
+        ]
+        for i in idx:
+            # parabolic interpolation of log psd around the bin
+            if 0 < i < p.size - 1:
+                a, b, g = np.log(p[i - 1 : i + 2])
+                den = a - 2 * b + g
+                d = 0.5 * (a - g) / den if den != 0 else 0.0
+            else:
+                d = 0.0
+            fp = spec.f[i] + d * df
+            half = p[i] / 2
+            lo = i
+            while lo > 0 and p[lo] > half:
+                lo -= 1
+            hi = i
+            while hi < p.size - 1 and p[hi] > half:
+                hi += 1
+            width = (hi - lo) * df
+            zeta = width / (2 * fp) if width > 1.5 * spec.resolution_hz else float("nan")
+            out.append(
+                Peak(c, float(fp), float(ratio[i]), float(zeta), float(np.sum(p[lo : hi + 1]) * df))
+            )
+    out.sort(key=lambda pk: -pk.ratio)
+    return out[:max_peaks]
+
+
+def coherence(e: np.ndarray, u: np.ndarray, fs: float, nperseg: int | None = None) -> tuple:
+    """Magnitude-squared coherence of residual channel e with input u and its 99 % bound.
+
+    Under no coherence with K independent segments, P(C > c) = (1 - c)^(K - 1).
+    """
+    e, u = np.asarray(e, float).ravel(), np.asarray(u, float).ravel()
+    nper = nperseg or welch_nperseg(e.size, fs)
+    f, c = signal.coherence(e, u, fs=fs, nperseg=nper)
+    k = max(2, int(2 * e.size / nper) - 1)
+    bound = 1.0 - ALPHA ** (1.0 / (k - 1))
+    return f, c, float(bound)
+
+
+def line_fraction(e: np.ndarray, fs: float, f0: float, rel_band: float = 0.1) -> tuple:
+    """How much of the residual power near f0 one fixed sinusoid explains.
+
+    The sinusoid frequency is refined on a fine grid around f0; a line (periodic disturbance)
+    gives a fraction near 1, a noise- or input-driven mode a small one. Returns
+    (fraction, refined frequency [Hz], amplitude).
+    """
+    e = np.asarray(e, float).ravel()
+    e = e - e.mean()
+    n = e.size
+    t = np.arange(n) / fs
+    grid = f0 * (1 + np.linspace(-0.03, 0.03, 61))
+    ph = np.exp(-2j * np.pi * np.outer(grid, t))
+    amp = np.abs(ph @ e) * 2 / n
+    k = int(np.argmax(amp))
+    f1 = float(grid[k])
+    reg = np.column_stack([np.cos(2 * np.pi * f1 * t), np.sin(2 * np.pi * f1 * t)])
+    th, *_ = np.linalg.lstsq(reg, e, rcond=None)
+    fit = reg @ th
+    b, a = signal.butter(
+        2, [f0 * (1 - rel_band), min(f0 * (1 + rel_band), 0.49 * fs)], "bandpass", fs=fs
+    )
+    band = signal.filtfilt(b, a, e)
+    p_band = float(np.mean(band**2))
+    frac = float(np.mean(fit**2) / p_band) if p_band > 0 else 0.0
+    return min(frac, 1.0), f1, float(np.hypot(*th))
