@@ -25,6 +25,7 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
+            "notch_filter_node = notch_filter_node.node:main",
         ],
     },
 )

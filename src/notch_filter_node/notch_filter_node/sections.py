@@ -204,7 +204,8 @@ class NotchBank:
     :meth:`process` filters a block ``(samples, channels)`` while the section parameters move
     linearly from their current values to ``params`` over the block, in sub-blocks of
     ``substep`` samples. NaN inputs give NaN outputs and do not enter the filter memory (the
-    last finite value of the channel is held in their place).
+    last finite value of the channel is held in their place). Bypassed sections cost nothing:
+    their memory is taken from the signal upstream when they come back.
     """
 
     def __init__(self, fs: float, channels: int, n_sections: int, substep: int = 8) -> None:
@@ -218,24 +219,36 @@ class NotchBank:
         # direct-form-I memory per section: [x[n-2], x[n-1]] and [y[n-2], y[n-1]]
         self._xm = np.zeros((self.n_sections, 2, self.channels))
         self._ym = np.zeros((self.n_sections, 2, self.channels))
+        self._in_hist = np.zeros((2, self.channels))  # bank input, last two samples
+        self._live = np.zeros(self.n_sections, dtype=bool)  # memory maintained last block
         self._last_finite = np.zeros(self.channels)
         self._primed = False
+
+    @property
+    def params(self) -> SectionParams:
+        """Section parameters in force at the end of the last block."""
+        return self._params
+
+    @params.setter
+    def params(self, p: SectionParams) -> None:
+        """Set the parameters at once (no ramp), e.g. before the first block."""
+        self._params = p.copy()
+        self._zp, self._zz = self._damping(self._params)
+        self._sos = sos_from_damping(self._params.center, self._zp, self._zz, self.fs)
 
     def _damping(self, p: SectionParams) -> tuple[np.ndarray, np.ndarray]:
         return pole_zero_damping(p.center, p.bandwidth, p.depth_db, self.fs, p.shape_depth_db)
 
     def sos(self) -> np.ndarray:
         """Sections ``(n_active, 6)`` currently applied (bypassed slots left out)."""
-        p = self.params
-        on = p.depth_db > DEPTH_OFF_DB
-        zp, zz = self._damping(p)
-        return sos_from_damping(p.center[on], zp[on], zz[on], self.fs)
+        return self._sos[self.params.depth_db > DEPTH_OFF_DB]
 
-    def _fill_nan(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        bad = ~np.isfinite(x)
-        if not bad.any():
+    def _fill_nan(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        finite = np.isfinite(x)
+        if finite.all():
             self._last_finite = x[-1].copy()
-            return x, bad
+            return x, None
+        bad = ~finite
         n = x.shape[0]
         idx = np.where(bad, -1, np.arange(n)[:, None])
         idx = np.maximum.accumulate(idx, axis=0)
@@ -244,12 +257,11 @@ class NotchBank:
         self._last_finite = filled[-1].copy()
         return filled, bad
 
-    def _prime(self, x0: np.ndarray) -> None:
-        """Start from steady state on the first sample (no start-up step: every section has
-        unit DC gain)."""
-        self._xm[:] = x0[None, None, :]
-        self._ym[:] = x0[None, None, :]
-        self._primed = True
+    def _same(self, p: SectionParams) -> bool:
+        q = self.params
+        return (np.array_equal(p.center, q.center) and np.array_equal(p.bandwidth, q.bandwidth)
+                and np.array_equal(p.depth_db, q.depth_db)
+                and np.array_equal(p.shape_depth_db, q.shape_depth_db))
 
     def process(self, x: np.ndarray, params: SectionParams | None = None) -> np.ndarray:
         """Filter ``x`` ``(samples, channels)``; the parameters ramp to ``params`` over it."""
@@ -261,47 +273,60 @@ class NotchBank:
             return x.copy()
         u, bad = self._fill_nan(x)
         if not self._primed:
-            self._prime(u[0])
+            self._in_hist[:] = u[0]
+            self._primed = True
         old = self.params
-        new = old if params is None else params
-        # where a slot was off, its new centre and bandwidth apply at once (it is the identity)
-        off_before = old.depth_db <= DEPTH_OFF_DB
-        start = old.copy()
-        start.center[off_before] = new.center[off_before]
-        start.bandwidth[off_before] = new.bandwidth[off_before]
-        start.shape_depth_db[off_before] = new.shape_depth_db[off_before]
-        # sub-block boundaries and the parameter fraction reached at each sub-block's midpoint
-        bounds = np.arange(0, n, self.substep)
-        ends = np.append(bounds[1:], n)
-        frac = (bounds + ends) / (2.0 * n)
-        zp0, zz0 = self._damping(start)
-        zp1, zz1 = self._damping(new)
-        y = u
+        steady_all = params is None or self._same(params)
+        if steady_all:
+            new, zp1, zz1, sos1 = old, self._zp, self._zz, self._sos
+            moving = np.zeros(self.n_sections, dtype=bool)
+            zp0, zz0, c0 = zp1, zz1, new.center
+        else:
+            new = params.copy()
+            zp1, zz1 = self._damping(new)
+            sos1 = sos_from_damping(new.center, zp1, zz1, self.fs)
+            # a slot that was off takes its new centre and poles at once (it is the identity)
+            off_before = old.depth_db <= DEPTH_OFF_DB
+            zp0 = np.where(off_before, zp1, self._zp)
+            zz0 = np.where(off_before, zp1, self._zz)
+            c0 = np.where(off_before, new.center, old.center)
+            moving = (c0 != new.center) | (zp0 != zp1) | (zz0 != zz1)
+        on = (new.depth_db > DEPTH_OFF_DB) | (old.depth_db > DEPTH_OFF_DB) | moving
+        run = on.copy()
+        for k in np.flatnonzero(~on & self._live):  # faded out: run until settled
+            run[k] = not self._settled(k)
+        # memory for sections that come back: the signal upstream of them at block start
+        upstream = self._in_hist.copy()
         for k in range(self.n_sections):
-            steady = (
-                start.center[k] == new.center[k]
-                and zp0[k] == zp1[k]
-                and zz0[k] == zz1[k]
-            )
-            if steady and new.depth_db[k] <= DEPTH_OFF_DB and self._settled(k):
-                self._remember(k, y, y)
-                continue
-            if steady:
-                sos = sos_from_damping(new.center[k : k + 1], zp1[k : k + 1], zz1[k : k + 1],
-                                       self.fs)
-                out = self._run(k, sos[0], y)
-            else:
-                fc = start.center[k] + frac * (new.center[k] - start.center[k])
+            if run[k] and not self._live[k]:
+                self._xm[k] = upstream
+                self._ym[k] = upstream
+            if self._live[k]:
+                upstream = self._ym[k].copy()
+        y = u
+        if run.any():
+            bounds = np.arange(0, n, self.substep)
+            ends = np.append(bounds[1:], n)
+            frac = (bounds + ends) / (2.0 * n)
+            for k in np.flatnonzero(run):
+                if not moving[k]:
+                    y = self._run(k, sos1[k], y)
+                    continue
+                fc = c0[k] + frac * (new.center[k] - c0[k])
                 zp = zp0[k] + frac * (zp1[k] - zp0[k])
                 zz = zz0[k] + frac * (zz1[k] - zz0[k])
                 sos = sos_from_damping(fc, zp, zz, self.fs)
                 out = np.empty_like(y)
                 for j, (a, b) in enumerate(zip(bounds, ends, strict=True)):
                     out[a:b] = self._run(k, sos[j], y[a:b])
-            y = out
-        self.params = new.copy()
-        y = y.copy() if y is u else y
-        y[bad] = np.nan
+                y = out
+        self._live = run
+        self._in_hist = _last_two(self._in_hist, u)
+        if not steady_all:
+            self._params, self._zp, self._zz, self._sos = new, zp1, zz1, sos1
+        y = y.copy() if y is x else y
+        if bad is not None:
+            y[bad] = np.nan
         return y
 
     def _settled(self, k: int) -> bool:
@@ -315,17 +340,22 @@ class NotchBank:
         """One section over a stretch with fixed coefficients, from its direct-form-I memory."""
         b0, b1, b2, _, a1, a2 = sos
         xm, ym = self._xm[k], self._ym[k]
+        if u.shape[0] == 1:  # one sample: the difference equation itself
+            out = b0 * u + (b1 * xm[1] + b2 * xm[0] - a1 * ym[1] - a2 * ym[0])
+            xm[0], xm[1] = xm[1], u[0]
+            ym[0], ym[1] = ym[1], out[0]
+            return out
         zi = np.empty((1, 2, self.channels))
         zi[0, 0] = b1 * xm[1] - a1 * ym[1] + b2 * xm[0] - a2 * ym[0]
         zi[0, 1] = b2 * xm[1] - a2 * ym[1]
         out, _ = signal.sosfilt(sos[None, :], u, axis=0, zi=zi)
-        self._remember(k, u, out)
+        self._xm[k] = _last_two(xm, u)
+        self._ym[k] = _last_two(ym, out)
         return out
 
-    def _remember(self, k: int, u: np.ndarray, out: np.ndarray) -> None:
-        if u.shape[0] >= 2:
-            self._xm[k] = u[-2:]
-            self._ym[k] = out[-2:]
-        else:
-            self._xm[k] = np.stack([self._xm[k, 1], u[-1]])
-            self._ym[k] = np.stack([self._ym[k, 1], out[-1]])
+
+def _last_two(hist: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The last two rows of ``hist`` followed by ``u``."""
+    if u.shape[0] >= 2:
+        return u[-2:].copy()
+    return np.stack([hist[1], u[-1]])

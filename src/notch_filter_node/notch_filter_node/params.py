@@ -1,0 +1,200 @@
+"""The notch_filter_node parameter table (pure, no rclpy).
+
+One :class:`ParamSpec` per parameter: type, default, description, range or choices, kind.
+``live`` parameters retune the running bank (changes move at the policy's rates),
+``structural`` ones rebuild the bank (filter memory restarts), ``read_only`` ones are set at
+start-up (topics: remap them or pass them with --ros-args -p). :func:`validate` checks one value,
+:func:`validate_set` a whole set (with the policy's cross checks); both return '' or a reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Literal
+
+from notch_filter_node.policy import PolicyConfig, check_config
+
+Kind = Literal["live", "structural", "read_only"]
+SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
+QOS_CHOICES = ("sensor_data", "reliable")
+IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
+MAX_CHANNELS = 64
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One node parameter: type, default, range (``lo``/``hi`` inclusive), kind."""
+
+    name: str
+    type: type
+    default: Any
+    description: str
+    kind: Kind = "live"
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[str, ...] | None = None
+    unit: str = ""
+
+
+def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw: Any) -> ParamSpec:
+    return ParamSpec(name, typ, default, desc, kind, **kw)
+
+
+_D = PolicyConfig()
+PARAMS: tuple[ParamSpec, ...] = (
+    # -- topics and QoS (read-only) --
+    _p("signal_topic", str, "/vibration", "Topic of the signal to filter", "read_only"),
+    _p("signal_type", str, "SignalSample", "Message type of signal_topic", "read_only",
+       choices=SIGNAL_TYPES),
+    _p("imu_axes", str, "az",
+       "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
+       "wx,wy,wz (angular velocity); the other fields are passed through", "read_only"),
+    _p("output_topic", str, "/vibration_filtered",
+       "Topic of the filtered signal (same type and header stamp as the input)", "read_only"),
+    _p("estimate_topic", str, "/modal_estimate", "Topic of sysid_msgs/ModalEstimate",
+       "read_only"),
+    _p("bank_topic", str, "/notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
+    _p("qos_depth", int, 100, "History depth of the signal subscription and publisher "
+       "[messages]", "read_only", lo=1, hi=100000),
+    _p("output_qos", str, "reliable",
+       "QoS of the filtered output: 'reliable' (matches reliable and best-effort subscribers) or "
+       "'sensor_data' (best effort)", "read_only", choices=QOS_CHOICES),
+    _p("max_notches", int, _D.max_notches,
+       "Number of adaptive notch sections (the fallback notch has its own) [-]", "read_only",
+       lo=1, hi=20),
+    # -- sampling (structural: rebuilds the bank) --
+    _p("sample_rate", float, 0.0,
+       "Sample rate of the signal [Hz]; 0 = from SignalBlock.sample_period or measured from the "
+       "stamps of the first samples (passed through unfiltered until then)", "structural",
+       lo=0.0, hi=100000.0, unit="Hz"),
+    _p("substep", int, 8,
+       "Sub-block length over which the coefficients are held while a notch moves [samples]",
+       "structural", lo=1, hi=256),
+    # -- retuning policy (live) --
+    _p("slew_rate", float, _D.slew_rate,
+       "Largest rate of change of a notch centre and bandwidth [Hz/s]", lo=0.001, hi=1000.0,
+       unit="Hz/s"),
+    _p("hysteresis", float, _D.hysteresis,
+       "A notch centre moves only when the estimate differs from its target by more than "
+       "max(hysteresis, hysteresis_sigma * frequency_std) [Hz]", lo=0.0, hi=100.0, unit="Hz"),
+    _p("hysteresis_sigma", float, _D.hysteresis_sigma,
+       "Hysteresis in units of the estimate's frequency std [-]", lo=0.0, hi=10.0),
+    _p("freq_min", float, _D.freq_min,
+       "Lowest centre frequency; modes below get no notch (keeps rigid-body modes) [Hz]",
+       lo=0.0, hi=50000.0, unit="Hz"),
+    _p("freq_max", float, _D.freq_max, "Highest centre frequency [Hz]; 0 = 0.4 x sample rate",
+       lo=0.0, hi=50000.0, unit="Hz"),
+    _p("depth", float, _D.depth, "Depth of the adaptive notches at their centre [dB]",
+       lo=3.5, hi=80.0, unit="dB"),
+    _p("min_attenuation", float, _D.min_attenuation,
+       "Attenuation kept over the uncertainty interval of the mode frequency; sets the "
+       "bandwidth (must be below depth) [dB]", lo=0.5, hi=79.0, unit="dB"),
+    _p("sigma_k", float, _D.sigma_k,
+       "Half-width of the uncertainty interval in frequency stds [-]", lo=0.0, hi=10.0),
+    _p("damping_gain", float, _D.damping_gain,
+       "Bandwidth is at least damping_gain * 2 (zeta + zeta_std) f [-]", lo=0.0, hi=20.0),
+    _p("bandwidth_min", float, _D.bandwidth_min, "Narrowest adaptive notch (-3 dB) [Hz]",
+       lo=0.001, hi=10000.0, unit="Hz"),
+    _p("bandwidth_max", float, _D.bandwidth_max,
+       "Widest adaptive notch (-3 dB); also used when the frequency std is unknown [Hz]",
+       lo=0.001, hi=10000.0, unit="Hz"),
+    _p("phase_lag_budget", float, _D.phase_lag_budget,
+       "Largest total phase lag of the adaptive notches at crossover_frequency [deg]",
+       lo=0.0, hi=180.0, unit="deg"),
+    _p("crossover_frequency", float, _D.crossover_frequency,
+       "Crossover frequency of the loop the bank sits in [Hz]", lo=0.001, hi=10000.0, unit="Hz"),
+    _p("stale_timeout", float, _D.stale_timeout,
+       "Age of the latest estimate at which the fallback notch is at full depth [s]",
+       lo=0.01, hi=3600.0, unit="s"),
+    _p("fallback_ramp", float, _D.fallback_ramp,
+       "Time the fallback notch takes to fade in (starts at stale_timeout - fallback_ramp) [s]",
+       lo=0.001, hi=600.0, unit="s"),
+    _p("hold_time", float, _D.hold_time,
+       "Time a lost mode's notch holds its centre before fading out [s]", lo=0.0, hi=3600.0,
+       unit="s"),
+    _p("fade_time", float, _D.fade_time,
+       "Time a notch takes to fade its depth in or out [s]", lo=0.001, hi=3600.0, unit="s"),
+    _p("fallback_center", float, _D.fallback_center, "Centre of the static fallback notch [Hz]",
+       lo=0.001, hi=50000.0, unit="Hz"),
+    _p("fallback_bandwidth", float, _D.fallback_bandwidth,
+       "-3 dB bandwidth of the static fallback notch [Hz]", lo=0.001, hi=10000.0, unit="Hz"),
+    _p("fallback_depth", float, _D.fallback_depth,
+       "Depth of the static fallback notch [dB]; 0 = no fallback notch", lo=0.0, hi=80.0,
+       unit="dB"),
+    _p("disabled_channels", str, "",
+       "Comma-separated zero-based indices of channels passed through unfiltered ('' = filter "
+       "all)"),
+    # -- publishing (live) --
+    _p("bank_rate", float, 1.0, "Rate at which /notch_bank is repeated when nothing changes "
+       "[Hz, wall clock]", lo=0.01, hi=100.0, unit="Hz"),
+    _p("bank_max_rate", float, 20.0, "Largest rate of /notch_bank while notches move "
+       "[Hz, wall clock]", lo=0.1, hi=1000.0, unit="Hz"),
+    _p("diagnostics_rate", float, 1.0, "Rate of /diagnostics [Hz, wall clock]", lo=0.1,
+       hi=100.0, unit="Hz"),
+)
+SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMS}
+POLICY_FIELDS = tuple(f.name for f in fields(PolicyConfig))
+
+
+def defaults() -> dict[str, Any]:
+    """Name -> default value of every parameter."""
+    return {s.name: s.default for s in PARAMS}
+
+
+def parse_list(text: str) -> list[str]:
+    """'a, b' -> ['a', 'b']."""
+    return [a.strip() for a in str(text).split(",") if a.strip()]
+
+
+def disabled_channels(text: str) -> list[int]:
+    """'0, 3' -> [0, 3] (validated by :func:`validate`)."""
+    return [int(a) for a in parse_list(text)]
+
+
+def validate(name: str, value: Any) -> str:
+    """Check one value against its spec; '' if valid, else the reason."""
+    spec = SPECS.get(name)
+    if spec is None:
+        return f"unknown parameter '{name}'"
+    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, spec.type) or (spec.type is int and isinstance(value, bool)):
+        return f"{name} must be of type {spec.type.__name__}, got {type(value).__name__}"
+    if spec.type is float and not math.isfinite(value):
+        return f"{name} must be finite, got {value}"
+    unit = f" {spec.unit}" if spec.unit else ""
+    if spec.lo is not None and value < spec.lo:
+        return f"{name}={value} is below the minimum {spec.lo:g}{unit}"
+    if spec.hi is not None and value > spec.hi:
+        return f"{name}={value} is above the maximum {spec.hi:g}{unit}"
+    if spec.choices is not None and value not in spec.choices:
+        return f"{name}='{value}' is not one of {', '.join(spec.choices)}"
+    if name == "imu_axes":
+        axes = parse_list(value)
+        if not axes or any(a not in IMU_AXES for a in axes) or len(set(axes)) != len(axes):
+            return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+    if name == "disabled_channels":
+        items = parse_list(value)
+        if not all(a.isdigit() and int(a) < MAX_CHANNELS for a in items):
+            return (f"disabled_channels='{value}': use comma-separated channel indices "
+                    f"0..{MAX_CHANNELS - 1}")
+    if name.endswith("_topic") and not value.startswith("/"):
+        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    return ""
+
+
+def policy_config(values: dict[str, Any]) -> PolicyConfig:
+    """The policy configuration held in a set of parameter values."""
+    return PolicyConfig(**{k: type(getattr(_D, k))(values[k]) for k in POLICY_FIELDS})
+
+
+def validate_set(values: dict[str, Any], fs: float = math.nan) -> str:
+    """Check a complete set of values, with cross checks; ``fs`` is the sample rate in use (or
+    NaN while unknown)."""
+    for name, value in values.items():
+        reason = validate(name, value)
+        if reason:
+            return reason
+    rate = values.get("sample_rate", 0.0) or fs
+    return check_config(policy_config(values), rate)
