@@ -102,8 +102,9 @@ class Signal:
     ``t`` holds the sample times [s] from the header stamps (for ``SignalBlock`` expanded to
     ``header.stamp + k * sample_period``), ``values`` the samples (one row per sample, one column
     per channel), ``receive_t`` the bag log time [s] of the message each sample came in.
-    ``bad_messages`` counts messages whose channel count differs from the first message
-    (a ``SignalSample`` of that kind becomes a NaN row, a malformed ``SignalBlock`` is skipped).
+    ``bad_messages`` counts messages whose channel count differs from the usual one (the most
+    common for ``SignalSample``, where such a message becomes a NaN row; the first message's for
+    ``SignalBlock``, where a malformed block is skipped).
     """
 
     topic: str
@@ -233,11 +234,12 @@ def _assemble(topic: str, msgtype: str, msgs: list, log_ns: list[int]) -> Signal
         return Signal(topic, msgtype, t, v, list(IMU_CHANNELS), rt)
     names: list[str] = []
     if msgtype == SIGNAL_SAMPLE:
-        c = len(msgs[0].values) if msgs else 0
-        names = list(msgs[0].channel_names) if msgs else []
+        counts = np.fromiter((len(m.values) for m in msgs), np.int64, len(msgs))
+        c = int(np.bincount(counts).argmax()) if msgs else 0  # the usual channel count
+        ok = counts == c
+        names = list(msgs[int(np.argmax(ok))].channel_names) if msgs else []
         t = np.fromiter((_stamp_s(m.header.stamp) for m in msgs), float, len(msgs))
         v = np.full((len(msgs), c), np.nan)
-        ok = np.fromiter((len(m.values) == c for m in msgs), bool, len(msgs))
         if ok.any():
             v[ok] = np.stack([m.values for m, g in zip(msgs, ok, strict=True) if g])
         return Signal(topic, msgtype, t, v, names, rt, int((~ok).sum()))

@@ -124,10 +124,12 @@ def test_wrong_channel_count_becomes_nan_row(tmp_path: Path) -> None:
     t, y, _ = _signals(5)
     items = bag_io.signal_samples(t, y, ["a", "b", "c"])
     items[2] = bag_io.signal_samples(t[2:3], y[2:3, :2], ["a", "b"])[0]
+    items[0] = bag_io.signal_samples(t[:1], y[:1, :1], ["a"])[0]  # even the first one
     bag = bag_io.write_bag(tmp_path / "b", {"/v": (bag_io.SIGNAL_SAMPLE, items)})
     v = bag_io.read_signals(bag)["/v"]
-    assert v.bad_messages == 1
-    assert np.isnan(v.values[2]).all() and np.isfinite(np.delete(v.values, 2, axis=0)).all()
+    assert v.bad_messages == 2 and v.channel_names == ["a", "b", "c"]
+    assert np.isnan(v.values[[0, 2]]).all()
+    np.testing.assert_array_equal(v.values[[1, 3, 4]], y[[1, 3, 4]])
 
 
 @pytest.fixture
