@@ -147,7 +147,7 @@ def make(name: str, seed: int = 0) -> Scenario:
         y = _noise(simulate(sys_a, ud + w, FS), rng)
         truth.update(samples=d, delay_s=d / FS)
     elif name == "nonlinear_stiffness":
-        k3 = 3.0e5
+        k3 = 1.0e6
         y = _noise(
             _simulate_duffing(_mode_block_system([(2.0, 0.02), (4.0, 0.05)], True), u + w, k3), rng
         )
@@ -180,7 +180,7 @@ def _simulate_lpv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     for k in range(u.shape[0]):
         key = int(round(v[k] * 20))
         if key not in cache:
-            sysk = _mode_block_system([(2.0, 0.0199), (float(lpv_frequency(key / 20)), 0.05)])
+            sysk = _mode_block_system([(2.0, 0.0199), (float(lpv_frequency(key / 20)), 0.02)])
             ad, bd, _, _ = discretize(sysk, FS)
             cache[key] = (ad, bd[:, 0])
         ad, bd = cache[key]

@@ -1,0 +1,83 @@
+"""validate CLI: the before/after table on a bag, and one-line errors with non-zero exit."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BAGS = ROOT / "bags" / "hidden"
+
+
+def _run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "sysid_node.tools.validate", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=os.environ.copy(),
+    )
+
+
+def test_table_json_and_saved_model(tmp_path):
+    out = tmp_path / "v.json"
+    model = tmp_path / "m.npz"
+    p = _run(
+        "--bag",
+        str(BAGS / "input_delay"),
+        "--order",
+        "4",
+        "--add",
+        "input_delay",
+        "--json",
+        str(out),
+        "--save-model",
+        str(model),
+    )
+    assert p.returncode == 0, p.stderr
+    assert "before" in p.stdout and "after +input_delay" in p.stdout
+    r = json.loads(out.read_text())
+    for key in ("before", "after", "diagnoses", "added"):
+        assert key in r
+    assert set(r["diagnoses"][0]) >= {"effect", "score", "evidence", "parameters"}
+    assert len(r["before"]["fit_percent"]) == 1 and len(r["after"]["residual_rms"]) == 1
+    assert model.is_file()
+
+
+def _one_line_error(p: subprocess.CompletedProcess) -> str:
+    assert p.returncode != 0
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, p.stderr
+    assert "Traceback" not in p.stderr
+    return lines[0]
+
+
+def test_missing_topic_one_line():
+    p = _run("--bag", str(BAGS / "clean"), "--output", "/nope")
+    assert "/nope" in _one_line_error(p)
+
+
+def test_too_short_to_split_one_line():
+    p = _run("--bag", str(BAGS / "clean"), "--split", "0.05", "--block-rows", "60")
+    assert "too short" in _one_line_error(p)
+
+
+def test_mismatched_model_one_line(tmp_path):
+    from sysid_node.core.batch import identify
+
+    rng = np.random.default_rng(0)
+    m = identify(rng.standard_normal((600, 2)), rng.standard_normal((600, 1)), fs=50.0, order=2)
+    path = tmp_path / "two_outputs.npz"
+    m.save(path)
+    p = _run("--bag", str(BAGS / "clean"), "--model", str(path))
+    assert "output" in _one_line_error(p)
+
+
+def test_unknown_effect_one_line():
+    p = _run("--bag", str(BAGS / "clean"), "--add", "gremlins")
+    assert "gremlins" in _one_line_error(p)
