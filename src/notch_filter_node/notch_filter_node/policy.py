@@ -174,6 +174,7 @@ class RetuningPolicy:
         self.budget_limited = False
         self.lag_deg = 0.0
         self.revision = 0  # incremented on every discrete change (state, target)
+        self._params: S.SectionParams | None = None  # returned again while nothing moves
 
     # ---- configuration ----
     @property
@@ -334,8 +335,16 @@ class RetuningPolicy:
                 s.mode_id = 0
                 self.revision += 1
         dt = max(float(dt), 0.0)
+        lo, hi = c.freq_min, self.fmax
+        last = len(self.slots) - 1
+        changed = False
         for i, s in enumerate(self.slots):
-            fallback = i == len(self.slots) - 1
+            fallback = i == last
+            want_shape = c.fallback_depth if fallback else c.depth
+            if (s.depth <= 0 and s.target_depth <= 0 and s.center == s.target_center
+                    and s.bandwidth == s.target_bandwidth and s.shape_depth == want_shape):
+                continue  # idle slot
+            before = (s.center, s.bandwidth, s.depth, s.shape_depth)
             step_f = c.slew_rate * dt
             if fallback:
                 depth_rate = (c.fallback_depth / c.fallback_ramp if s.target_depth > s.depth
@@ -346,16 +355,17 @@ class RetuningPolicy:
             s.center = _toward(s.center, s.target_center, step_f)
             s.bandwidth = _toward(s.bandwidth, s.target_bandwidth, step_f)
             s.depth = _toward(s.depth, s.target_depth, max(depth_rate, 1e-9) * dt)
-            want_shape = c.fallback_depth if fallback else c.depth
             if s.depth <= 0:
                 s.shape_depth = want_shape
             else:
-                s.shape_depth = _toward(s.shape_depth, want_shape, max(c.depth, 1.0) / c.fade_time
-                                        * dt)
-            lo, hi = c.freq_min, self.fmax
+                s.shape_depth = _toward(s.shape_depth, want_shape,
+                                        max(c.depth, 1.0) / c.fade_time * dt)
             if not fallback:
                 s.center = min(max(s.center, lo), hi)
-        return self.params()
+            changed = changed or before != (s.center, s.bandwidth, s.depth, s.shape_depth)
+        if changed or self._params is None:
+            self._params = self.params()
+        return self._params
 
     def params(self) -> S.SectionParams:
         """Current section parameters (adaptive slots, then the fallback)."""

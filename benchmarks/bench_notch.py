@@ -1,0 +1,88 @@
+"""Cost per sample of the adaptive notch bank (6 channels x 5 notches) and the highest sample rate
+it sustains on one core, for several block sizes, with the notches fixed and while all of them
+retune.
+
+    ros2_ws/env python benchmarks/bench_notch.py [--fs 1000] [--seconds 0.4]
+
+Cost = wall time of AdaptiveNotchFilter.process (policy + bank) per sample of all channels,
+median of 5 repeats; "max rate" = 1 / cost, i.e. one core doing nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+import numpy as np
+from notch_filter_node.adaptive import AdaptiveNotchFilter
+from notch_filter_node.policy import EstimateInput, ModeInput, PolicyConfig
+
+CHANNELS, NOTCHES = 6, 5
+MODES_HZ = (3.0, 6.0, 9.0, 12.0, 15.0)
+BLOCKS = (1, 8, 32, 128, 512)
+
+
+def estimate(t: float, retune: bool, k: int) -> EstimateInput:
+    shift = (0.5 if k % 2 else -0.5) if retune else 0.0
+    modes = [ModeInput(i + 1, "tracked", f + shift, 0.01, 0.02, 0.003)
+             for i, f in enumerate(MODES_HZ)]
+    return EstimateInput(t, True, modes)
+
+
+def measure(fs: float, block: int, retune: bool, seconds: float, seed: int = 0) -> float:
+    """Seconds of wall time per sample (all channels)."""
+    cfg = PolicyConfig(max_notches=NOTCHES, slew_rate=2.0, phase_lag_budget=180.0,
+                       fallback_depth=0.0, stale_timeout=100.0)
+    flt = AdaptiveNotchFilter(cfg, fs, CHANNELS)
+    rng = np.random.default_rng(seed)
+    n = max(int(seconds * fs) // block, 20) * block
+    x = rng.normal(size=(n, CHANNELS))
+    flt.set_estimate(estimate(0.0, retune, 0))
+    warm = int(2 * fs)  # notches faded in before timing
+    xw = rng.normal(size=(warm, CHANNELS))
+    for a in range(0, warm, 64):
+        flt.process(xw[a : a + 64], (a + 63) / fs)
+    k, next_est = 1, 0.2
+    elapsed = 0.0
+    for a in range(0, n, block):
+        t_last = (warm + a + block - 1) / fs
+        t0 = time.perf_counter()
+        if t_last >= next_est:
+            flt.set_estimate(estimate(t_last, retune, k))
+            k, next_est = k + 1, next_est + 0.2
+        flt.process(x[a : a + block], t_last)
+        elapsed += time.perf_counter() - t0
+    active = len(flt.status().notches)
+    if active != NOTCHES:
+        raise SystemExit(f"bench_notch: error: {active} notches active, expected {NOTCHES}")
+    return elapsed / n
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fs", type=float, default=1000.0, help="sample rate of the data [Hz]")
+    ap.add_argument("--seconds", type=float, default=0.4, help="data per repeat [s]")
+    args = ap.parse_args(argv)
+    if not args.fs > 2 * max(MODES_HZ) / 0.4:
+        print(f"bench_notch: error: --fs must exceed {2 * max(MODES_HZ) / 0.4:g} Hz",
+              file=sys.stderr)
+        return 1
+    print(f"adaptive notch bank: {CHANNELS} channels x {NOTCHES} notches, fs = {args.fs:g} Hz, "
+          "policy + bank, median of 5 repeats")
+    print(f"{'block':>6} {'notches':>9} {'us/sample':>10} {'us/ch-sample':>13} "
+          f"{'max rate [kHz]':>15} {'x real time':>12}")
+    for retune in (False, True):
+        for block in BLOCKS:
+            cost = statistics.median(
+                measure(args.fs, block, retune, args.seconds, seed) for seed in range(5)
+            )
+            print(f"{block:>6} {'retuning' if retune else 'fixed':>9} {cost * 1e6:>10.2f} "
+                  f"{cost * 1e6 / CHANNELS:>13.2f} {1e-3 / cost:>15.1f} "
+                  f"{1.0 / (cost * args.fs):>12.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
