@@ -61,10 +61,14 @@ def model_from_projection(
     damping_bounds: tuple[float, float] | None,
     max_modes: int | None,
     time_s: float = float("nan"),
+    riccati: bool = True,
 ) -> IdentifiedModel:
-    """Realize order ``order`` from a projection of scaled data and undo the channel scaling."""
+    """Realize order ``order`` from a projection of scaled data and undo the channel scaling.
+
+    ``riccati`` selects the Kalman gain from the Riccati equation (else K = S R^{-1}, cheaper).
+    """
     rz = realize(proj, order)
-    k_s, re_s = kalman_gain(rz.A, rz.C, rz.Q, rz.S, rz.R)
+    k_s, re_s = kalman_gain(rz.A, rz.C, rz.Q, rz.S, rz.R, riccati)
     b_all = np.hstack([rz.B, k_s])
     m, l = rz.B.shape[1], rz.C.shape[0]
     drive = np.zeros((m + l, m + l))

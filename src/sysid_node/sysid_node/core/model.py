@@ -13,8 +13,20 @@ from .inputs import InputError, as_2d
 from .modal import ModalParameters
 from .systems import ContinuousSystem, simulate_discrete
 
-_ARRAYS = ("A", "B", "C", "D", "K", "Q", "R", "S", "innovation_covariance", "singular_values",
-           "real_poles", "input_covariance")
+_ARRAYS = (
+    "A",
+    "B",
+    "C",
+    "D",
+    "K",
+    "Q",
+    "R",
+    "S",
+    "innovation_covariance",
+    "singular_values",
+    "real_poles",
+    "input_covariance",
+)
 
 
 @dataclass

@@ -127,14 +127,22 @@ def realize(proj: Projection, n: int) -> Realization:
 
 
 def kalman_gain(
-    a: np.ndarray, c: np.ndarray, q: np.ndarray, s: np.ndarray, r: np.ndarray
+    a: np.ndarray,
+    c: np.ndarray,
+    q: np.ndarray,
+    s: np.ndarray,
+    r: np.ndarray,
+    riccati: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Steady-state Kalman gain K and innovation covariance for the innovation form
     x+ = A x + B u + K e, y = C x + D u + e; falls back to K = S R^{-1} (the residual
-    regression) when the Riccati equation has no stabilising solution."""
+    regression: the (A3) states are Kalman states, so their residuals are K e) when the Riccati
+    equation has no stabilising solution or ``riccati`` is False."""
     n, l = a.shape[0], c.shape[0]
     r_reg = r + 1e-12 * max(np.trace(r) / max(l, 1), 1e-300) * np.eye(l)
     try:
+        if not riccati:
+            raise ValueError("residual gain requested")
         with np.errstate(all="ignore"):
             p = linalg.solve_discrete_are(a.T, c.T, q + 1e-12 * np.eye(n), r_reg, s=s)
         re = c @ p @ c.T + r_reg

@@ -209,9 +209,7 @@ def simulate_switching(
     return np.vstack(outs)
 
 
-def add_output_noise(
-    y: np.ndarray, fraction: float, rng: np.random.Generator
-) -> np.ndarray:
+def add_output_noise(y: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
     """y plus white Gaussian noise whose std is ``fraction`` x each channel's std (0.05 = 5 %)."""
     y = np.asarray(y, dtype=float)
     std = np.std(y, axis=0, keepdims=True)

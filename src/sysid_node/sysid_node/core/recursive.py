@@ -1,0 +1,354 @@
+"""Recursive DSRA (Appendix B of the paper): RecursiveDSRA.update(u, y), .modes().
+
+The RLS of L_p with forgetting factor lambda is kept in information form: the exponentially
+weighted product of the windowed data z_k = [u_p; y_p; u_f; y_f] (hankel.py),
+
+    R_k = lambda_k R_{k-1} + z_k z_k' + (1 - lambda_k) delta I,
+
+is updated per block with the per-sample weights prod_{s>k} lambda_s (one matrix product per
+block, mathematically the per-sample RLS recursion). Its regressor block is the RLS information
+matrix of [P; U_f], so [L_p T_d] = R_{yf,phi} R_{phi,phi}^{-1} is the RLS estimate of (A2); the
+regularised forgetting keeps R >= delta I in steady state (covariance P = R^{-1} <= 1/delta, SPD
+by construction, no wind-up without excitation). Start-up uses lambda_k = min(lambda, 1 - 1/k)
+(a growing window until the memory 1/(1 - lambda) is reached).
+
+At a configurable slower rate the model is realized from the Cholesky factor of R with the
+same SVD-based algorithm as the batch (realization.py: (A2), SVD, Kalman states (A3), (A4)),
+which the paper notes is more accurate than the per-sample RLS update of G. Channels are scaled
+by their standard deviation over the first samples (or by given scales).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy import linalg
+
+from .batch import model_from_projection
+from .hankel import Layout, window_rows
+from .inputs import InputError, as_2d, check_rate, finite_rows
+from .modal import ModalParameters, select_modes
+from .model import IdentifiedModel
+from .order import select_order
+from .realization import project
+
+
+class RecursiveDSRA:
+    """Online DSRA over blocks of samples of any length (including 1).
+
+    Parameters: ``n_outputs`` l, ``n_inputs`` m (0 = output-only), sample rate ``fs`` [Hz],
+    ``block_rows`` i, ``max_order`` (model order of the realization; default
+    2 ``max_modes``, else 10), ``forgetting_factor`` lambda, ``realization_interval`` [samples]
+    between SVD realizations, ``band`` / ``damping_bounds`` / ``max_modes`` for mode selection,
+    ``order_method`` None (fixed ``max_order``, the paper's choice) or "gap"/"aic"/"bic"/"mdl"
+    up to ``max_order``, ``delta`` the regularisation (scaled units), ``min_excitation`` the
+    mean weighted power (scaled units) below which no realization is attempted, ``input_scale``
+    / ``output_scale`` fixed channel scales (default: std of the first ``scale_samples``),
+    ``startup_memory`` the growing initial memory lambda_k = min(lambda, 1 - 1/k).
+
+    Change detection (beyond the paper, for abrupt changes such as its 6 Hz example): when the
+    short-term (``change_window`` samples) mean square of the a-priori prediction error of any
+    output exceeds ``change_threshold`` times its long-term (1 / (1 - lambda)) level, the old
+    information is discounted by ``change_discount`` (R <- c R + (1 - c) delta I), and once more
+    2i samples later (the windows that straddle the change are inconsistent with any single
+    LTI model); then no new detection for one memory length. ``change_count`` counts the detections.
+    """
+
+    def __init__(
+        self,
+        n_outputs: int,
+        n_inputs: int = 0,
+        fs: float = 1.0,
+        block_rows: int = 20,
+        max_order: int | None = None,
+        forgetting_factor: float = 0.99,
+        realization_interval: int = 10,
+        band: tuple[float, float] | None = None,
+        damping_bounds: tuple[float, float] | None = (0.0, 0.5),
+        max_modes: int | None = None,
+        order_method: str | None = None,
+        delta: float = 1e-6,
+        min_excitation: float = 1e-4,
+        input_scale: np.ndarray | None = None,
+        output_scale: np.ndarray | None = None,
+        scale_samples: int | None = None,
+        startup_memory: bool = True,
+        change_detection: bool = True,
+        change_threshold: float = 3.0,
+        change_window: int = 20,
+        change_discount: float = 0.1,
+    ) -> None:
+        if n_outputs < 1 or n_inputs < 0:
+            raise InputError(f"need n_outputs >= 1 and n_inputs >= 0, got {n_outputs}, {n_inputs}")
+        if block_rows < 2:
+            raise InputError(f"block_rows must be >= 2, got {block_rows}")
+        self.fs = check_rate(fs)
+        self.layout = Layout(block_rows, n_inputs, n_outputs)
+        self.n_inputs, self.n_outputs, self.block_rows = n_inputs, n_outputs, block_rows
+        top = n_outputs * (block_rows - 1)
+        if max_order is None:
+            max_order = min(2 * max_modes if max_modes else 10, top)
+        if not 1 <= max_order <= top:
+            raise InputError(f"max_order must be in [1, {top}] for block_rows={block_rows}")
+        if realization_interval < 1:
+            raise InputError(f"realization_interval must be >= 1, got {realization_interval}")
+        self.max_order = int(max_order)
+        self.realization_interval = int(realization_interval)
+        self.order_method = order_method
+        self.max_modes = max_modes
+        self.delta = float(delta)
+        self.min_excitation = float(min_excitation)
+        self.set_forgetting_factor(forgetting_factor)
+        self.set_band(band, damping_bounds)
+        self._fixed_su = None if input_scale is None else np.asarray(input_scale, float).ravel()
+        self._fixed_sy = None if output_scale is None else np.asarray(output_scale, float).ravel()
+        self.scale_samples = int(scale_samples or max(4 * block_rows, 50))
+        self.startup_memory = bool(startup_memory)
+        self.change_detection = bool(change_detection)
+        self.change_threshold = float(change_threshold)
+        self.change_window = int(change_window)
+        self.change_discount = float(change_discount)
+        self.reset()
+
+    # ------------------------------------------------------------------ configuration
+    def set_forgetting_factor(self, lam: float) -> None:
+        """Change lambda live (0 < lambda <= 1); the current estimate is kept."""
+        lam = float(lam)
+        if not 0.0 < lam <= 1.0:
+            raise InputError(f"forgetting_factor must be in (0, 1], got {lam}")
+        self.forgetting_factor = lam
+
+    def set_band(
+        self,
+        band: tuple[float, float] | None,
+        damping_bounds: tuple[float, float] | None = (0.0, 0.5),
+    ) -> None:
+        """Change the frequency band [Hz] and damping bounds used to select modes (live)."""
+        if band is not None and not (0.0 <= band[0] < band[1]):
+            raise InputError(f"band must satisfy 0 <= fmin < fmax, got {band}")
+        if damping_bounds is not None and not damping_bounds[0] < damping_bounds[1]:
+            raise InputError(
+                f"damping_bounds must be (low, high) with low < high, got {damping_bounds}"
+            )
+        self.band, self.damping_bounds = band, damping_bounds
+
+    def reset(self) -> None:
+        """Forget all data and the model (configuration is kept)."""
+        d = self.layout.dim
+        self._info = self.delta * np.eye(d)  # weighted information matrix R_k
+        self._sum_w = 0.0
+        self._sum_w2 = 0.0
+        self._k = 0  # number of windows absorbed
+        self._tail = np.zeros((0, self.n_inputs + self.n_outputs))  # last 2i-1 scaled samples
+        self._pending: list[np.ndarray] = []
+        self._su = self._fixed_su
+        self._sy = self._fixed_sy
+        self._since_realization = 0
+        self._theta1: np.ndarray | None = None
+        self._pe_ms = np.full(self.n_outputs, np.nan)
+        self._pe_short = np.full(self.n_outputs, np.nan)
+        self._holdoff = 0
+        self._second_discount = 0
+        self.change_count = 0
+        self.model: IdentifiedModel | None = None
+        self.samples_seen = 0
+        self.samples_skipped = 0
+        self.realization_count = 0
+        self.realizations_skipped = 0
+        self.last_realization_time = float("nan")  # data time [s]
+        self.last_realization_cost_s = float("nan")  # wall-clock seconds
+        self._excited = False
+
+    # ------------------------------------------------------------------ status
+    @property
+    def prediction_error_rms(self) -> np.ndarray:
+        """Per-channel RMS of the a-priori one-step prediction error of the (A2) predictor
+        (physical units, exponentially weighted); NaN until the first realization."""
+        if self._sy is None:
+            return np.full(self.n_outputs, np.nan)
+        return np.sqrt(self._pe_ms) * self._sy
+
+    @property
+    def converged(self) -> bool:
+        """A model exists, the memory is filled and the data excite the estimator."""
+        mem = min(1.0 / max(1.0 - self.forgetting_factor, 1e-9), 10 * self.layout.dim)
+        return self.model is not None and self._excited and self._k >= mem
+
+    @property
+    def information_matrix(self) -> np.ndarray:
+        """Current weighted information matrix R_k (scaled units, SPD, >= delta I)."""
+        return self._info.copy()
+
+    def modes(self) -> list[ModalParameters]:
+        """Modes of the latest realization, selected with the current band/damping/max_modes."""
+        if self.model is None:
+            return []
+        return select_modes(self.model.modes, self.band, self.damping_bounds, self.max_modes)
+
+    # ------------------------------------------------------------------ update
+    def update(self, u_block: np.ndarray | None, y_block: np.ndarray) -> list[IdentifiedModel]:
+        """Absorb a block of samples u (N, m) (None when m = 0) and y (N, l).
+
+        Samples with NaN/Inf are skipped and counted (``samples_skipped``); the window restarts
+        after them. Returns the models realized during this block (usually none or one).
+        """
+        y = as_2d(y_block, "y_block", self.n_outputs)
+        if self.n_inputs == 0:
+            if u_block is not None and np.asarray(u_block).size:
+                raise InputError("estimator is output-only (n_inputs=0) but u_block was given")
+            u = np.zeros((y.shape[0], 0))
+        else:
+            if u_block is None:
+                raise InputError(f"u_block with {self.n_inputs} input(s) is required")
+            u = as_2d(u_block, "u_block", self.n_inputs)
+            if u.shape[0] != y.shape[0]:
+                raise InputError(f"u_block has {u.shape[0]} samples but y_block {y.shape[0]}")
+        data = np.hstack([u, y])
+        self.samples_seen += data.shape[0]
+        ok = finite_rows(data)
+        out: list[IdentifiedModel] = []
+        if ok.all():
+            self._absorb(data, out)
+            return out
+        bad = np.flatnonzero(~ok)
+        self.samples_skipped += bad.size
+        start = 0
+        for b in bad:  # rare path: split at bad samples, restart the window after each
+            if b > start:
+                self._absorb(data[start:b], out)
+            self._tail = self._tail[:0]
+            start = b + 1
+        if start < data.shape[0]:
+            self._absorb(data[start:], out)
+        return out
+
+    def _absorb(self, data: np.ndarray, out: list[IdentifiedModel]) -> None:
+        if self._su is None or self._sy is None:
+            self._pending.append(data)
+            have = sum(p.shape[0] for p in self._pending)
+            if have < self.scale_samples:
+                return
+            data = np.vstack(self._pending)
+            self._pending = []
+            std = np.std(data, axis=0)
+            std = np.where(std > 0, std, 1.0)
+            m = self.n_inputs
+            self._su = std[:m] if self._su is None else self._su
+            self._sy = std[m:] if self._sy is None else self._sy
+        scale = np.concatenate([self._su, self._sy])
+        data = data / scale
+        # split so that realizations happen every realization_interval samples
+        pos = 0
+        while pos < data.shape[0]:
+            take = min(data.shape[0] - pos, self.realization_interval - self._since_realization)
+            self._accumulate(data[pos : pos + take])
+            pos += take
+            self._since_realization += take
+            if self._since_realization >= self.realization_interval:
+                self._since_realization = 0
+                mdl = self._realize(pos - data.shape[0])
+                if mdl is not None:
+                    out.append(mdl)
+
+    def _accumulate(self, data: np.ndarray) -> None:
+        i = self.block_rows
+        buf = np.vstack([self._tail, data])
+        self._tail = buf[-(2 * i - 1) :]
+        m = self.n_inputs
+        z = window_rows(buf[:, :m], buf[:, m:], i)
+        n = z.shape[0]
+        if n == 0:
+            return
+        if self._theta1 is not None:  # a-priori one-step prediction error of y_f,1
+            lay = self.layout
+            r = self._theta1.shape[1]
+            e2 = (
+                z[:, lay.yf.start : lay.yf.start + self.n_outputs] - z[:, :r] @ self._theta1.T
+            ) ** 2
+            self._pe_short = self._ew_mean(self._pe_short, e2, 1.0 - 1.0 / self.change_window)
+            self._holdoff = max(self._holdoff - n, 0)
+            if (
+                self.change_detection
+                and self._holdoff == 0
+                and np.any(self._pe_short > self.change_threshold * self._pe_ms)
+            ):
+                self._discount(self.change_discount)
+                self._holdoff = int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
+                self._second_discount = 2 * self.block_rows
+                self.change_count += 1
+            elif self._second_discount > 0:
+                self._second_discount -= n
+                if self._second_discount <= 0:
+                    self._discount(self.change_discount)
+            self._pe_ms = self._ew_mean(self._pe_ms, e2, self.forgetting_factor)
+        k = self._k + np.arange(1, n + 1)
+        lam = np.full(n, self.forgetting_factor)
+        if self.startup_memory:
+            lam = np.minimum(lam, 1.0 - 1.0 / k)
+        w = np.append(np.cumprod(lam[::-1])[::-1][1:], 1.0)  # prod_{s>t} lambda_s
+        decay = float(np.prod(lam))
+        zw = z * w[:, None]
+        info = decay * self._info
+        info += zw.T @ z
+        info[np.diag_indices_from(info)] += self.delta * (1.0 - decay)
+        self._info = 0.5 * (info + info.T)
+        self._sum_w = decay * self._sum_w + float(w.sum())
+        self._sum_w2 = decay**2 * self._sum_w2 + float(w @ w)
+        self._k += n
+
+    def _discount(self, c: float) -> None:
+        """Keep a fraction c of the old information (R >= delta I is preserved)."""
+        self._info *= c
+        self._info[np.diag_indices_from(self._info)] += (1.0 - c) * self.delta
+        self._sum_w *= c
+        self._sum_w2 *= c * c
+
+    @staticmethod
+    def _ew_mean(prev: np.ndarray, sq: np.ndarray, lam: float) -> np.ndarray:
+        w = lam ** np.arange(sq.shape[0] - 1, -1, -1)
+        new = (w[:, None] * sq).sum(axis=0) * (1 - lam)
+        prev = np.where(np.isfinite(prev), prev, sq.mean(axis=0))
+        return lam ** sq.shape[0] * prev + new
+
+    def _realize(self, offset_from_end: int) -> IdentifiedModel | None:
+        t0 = time.perf_counter()
+        lay = self.layout
+        if self._k < 2 * self.max_order + lay.dim // 4:
+            return None
+        power = float(np.trace(self._info)) / lay.dim / max(self._sum_w, 1e-300)
+        self._excited = power >= self.min_excitation
+        if not self._excited:
+            self.realizations_skipped += 1
+            return None
+        try:
+            chol = linalg.cholesky(self._info, lower=True, check_finite=False)
+            proj = project(chol, lay, self._sum_w, self._sum_w2)
+            n = self.max_order
+            if self.order_method is not None:
+                n = select_order(proj, self.order_method, self.max_order)
+            t_now = (self.samples_seen + offset_from_end) / self.fs
+            mdl = model_from_projection(
+                proj,
+                n,
+                self.fs,
+                self._su if lay.m else np.zeros(0),
+                self._sy,
+                self.band,
+                self.damping_bounds,
+                self.max_modes,
+                time_s=t_now,
+                riccati=False,
+            )
+        except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
+            self.realizations_skipped += 1
+            return None
+        if not (np.all(np.isfinite(mdl.A)) and np.all(np.isfinite(mdl.C))):
+            self.realizations_skipped += 1
+            return None
+        self._theta1 = proj.theta[: lay.l].copy()
+        self.model = mdl
+        self.realization_count += 1
+        self.last_realization_time = mdl.time_s
+        self.last_realization_cost_s = time.perf_counter() - t0
+        return mdl

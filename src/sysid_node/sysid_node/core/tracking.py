@@ -1,0 +1,149 @@
+"""Mode tracking across realizations: stable ids, tentative/tracked/lost, consistency.
+
+Each update matches the new modes to the existing tracks by a gated cost in frequency, damping
+and mode shape (MAC), solved as an assignment problem (``scipy.optimize.linear_sum_assignment``).
+Unmatched modes open tentative tracks, confirmed after ``confirm_hits`` hits (consistency across
+updates rejects one-off spurious modes); a track not seen for ``lost_timeout_s`` is lost (and
+may be re-acquired with the same id), and dropped after ``drop_timeout_s``. Tentative tracks
+that miss for ``lost_timeout_s`` are discarded. Reported values are exponentially smoothed over
+the hits; the standard deviations combine the delta-method value of the latest realization
+with the empirical spread of the recent raw estimates.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .modal import ModalParameters, mac
+
+STATUSES = ("tentative", "tracked", "lost")
+
+
+@dataclass
+class TrackedMode:
+    """A physical mode followed across updates."""
+
+    id: int
+    status: str
+    mode: ModalParameters
+    first_seen: float
+    last_seen: float
+    hits: int
+    history: deque = field(default_factory=lambda: deque(maxlen=20), repr=False)
+
+    @property
+    def frequency_hz(self) -> float:
+        return self.mode.frequency_hz
+
+    @property
+    def damping_ratio(self) -> float:
+        return self.mode.damping_ratio
+
+
+class ModeTracker:
+    """Give each physical mode a stable id across successive realizations.
+
+    ``frequency_gate`` relative frequency difference, ``damping_gate`` absolute damping-ratio
+    difference and ``mac_gate`` minimum MAC (used when shapes have more than one component)
+    bound a match; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing).
+    """
+
+    def __init__(
+        self,
+        frequency_gate: float = 0.05,
+        damping_gate: float = 0.05,
+        mac_gate: float = 0.6,
+        confirm_hits: int = 3,
+        lost_timeout_s: float = 1.0,
+        drop_timeout_s: float = 30.0,
+        smoothing: float = 0.5,
+        history: int = 20,
+    ) -> None:
+        if not 0.0 < smoothing <= 1.0:
+            raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
+        if confirm_hits < 1:
+            raise ValueError(f"confirm_hits must be >= 1, got {confirm_hits}")
+        self.frequency_gate = frequency_gate
+        self.damping_gate = damping_gate
+        self.mac_gate = mac_gate
+        self.confirm_hits = confirm_hits
+        self.lost_timeout_s = lost_timeout_s
+        self.drop_timeout_s = drop_timeout_s
+        self.smoothing = smoothing
+        self.history = history
+        self.tracks: list[TrackedMode] = []
+        self._next_id = 1
+
+    def reset(self) -> None:
+        self.tracks = []
+        self._next_id = 1
+
+    def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
+        f0 = max(tr.mode.frequency_hz, 1e-12)
+        cf = abs(md.frequency_hz - f0) / f0 / self.frequency_gate
+        cz = abs(md.damping_ratio - tr.mode.damping_ratio) / self.damping_gate
+        cm = 0.0
+        if np.size(md.shape) > 1 and np.size(tr.mode.shape) == np.size(md.shape):
+            cm = (1.0 - mac(tr.mode.shape, md.shape)) / max(1.0 - self.mac_gate, 1e-9)
+        if cf > 1 or cz > 1 or cm > 1:
+            return np.inf
+        return cf**2 + cz**2 + cm**2
+
+    def update(self, modes: list[ModalParameters], t: float) -> list[TrackedMode]:
+        """Match ``modes`` (one realization at data time ``t`` [s]); returns the live tracks
+        (tentative, tracked and lost) sorted by frequency."""
+        matched: set[int] = set()
+        if self.tracks and modes:
+            cost = np.array([[self._cost(tr, md) for md in modes] for tr in self.tracks])
+            big = 1e6
+            rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
+            for r, c in zip(rows, cols, strict=True):
+                if np.isfinite(cost[r, c]):
+                    self._hit(self.tracks[r], modes[c], t)
+                    matched.add(c)
+        for c, md in enumerate(modes):
+            if c not in matched:
+                tr = TrackedMode(
+                    self._next_id, "tentative", md, t, t, 0, deque(maxlen=self.history)
+                )
+                self._next_id += 1
+                self._hit(tr, md, t, first=True)
+                self.tracks.append(tr)
+        keep = []
+        for tr in self.tracks:
+            age = t - tr.last_seen
+            if tr.status == "tentative" and age > self.lost_timeout_s:
+                continue
+            if tr.status == "tracked" and age > self.lost_timeout_s:
+                tr.status = "lost"
+            if tr.status == "lost" and age > self.drop_timeout_s:
+                continue
+            keep.append(tr)
+        self.tracks = keep
+        return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
+
+    def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
+        tr.history.append((md.frequency_hz, md.damping_ratio))
+        tr.hits += 1
+        tr.last_seen = t
+        a = 1.0 if first else self.smoothing
+        f = tr.mode.frequency_hz + a * (md.frequency_hz - tr.mode.frequency_hz)
+        z = tr.mode.damping_ratio + a * (md.damping_ratio - tr.mode.damping_ratio)
+        f_std, z_std = md.frequency_std_hz, md.damping_std
+        if len(tr.history) >= 3:
+            h = np.array(tr.history)
+            f_std = float(np.hypot(np.nan_to_num(f_std), np.std(h[:, 0], ddof=1)))
+            z_std = float(np.hypot(np.nan_to_num(z_std), np.std(h[:, 1], ddof=1)))
+        tr.mode = replace(
+            md,
+            frequency_hz=float(f),
+            damping_ratio=float(z),
+            frequency_std_hz=f_std,
+            damping_std=z_std,
+        )
+        if tr.status == "lost" or (tr.status == "tentative" and tr.hits >= self.confirm_hits):
+            tr.status = "tracked"
