@@ -64,6 +64,18 @@ def paper_bag(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def short_bag(tmp_path_factory) -> Path:
+    """8 s of the paper example (for the command-line tests)."""
+    from sysid_node.core.systems import paper_example_data
+
+    t, u, y = paper_example_data(duration_s=8.0, fs=100.0, seed=2)
+    t = t + 1_700_000_000.0
+    path = tmp_path_factory.mktemp("short") / "paper_short"
+    bag_io.write_signals(path, {"/vibration": (t, y, ["y"]), "/excitation": (t, u, ["u"])})
+    return path
+
+
 def _start_time(bag: Path) -> int:
     for conn, _ts, raw in bag_io.iter_messages(bag, ["/vibration"]):
         return mc.stamp_ns(bag_io.typestore().deserialize_cdr(raw, conn.msgtype).header)
@@ -132,7 +144,10 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
     paper_bag, offline_records, tmp_path
 ):
     rec_bag = tmp_path / "recorded"
-    node = _start(["sysid_node", "--ros-args", "-p", "qos:=reliable"], tmp_path / "node.log")
+    # reliable and a deep reader queue: on a loaded 2-core machine the subscriber process can be
+    # descheduled for a while, and offline = live holds only if no sample is lost
+    node = _start(["sysid_node", "--ros-args", "-p", "qos:=reliable", "-p", "qos_depth:=5000"],
+                  tmp_path / "node.log")
     record = _start(["record", "-o", str(rec_bag), "/modal_estimate"], tmp_path / "record.log")
     try:
         time.sleep(2.0)
@@ -154,12 +169,6 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
     t0 = _start_time(paper_bag)
     assert len(live) > 300
 
-    at2 = _at(live, t0 + 2_000_000_000)
-    assert _near(at2, 2.0) and _near(at2, 4.0), [m.frequency_hz for m in at2.modes]
-    at21 = _at(live, t0 + 21_500_000_000)
-    assert _near(at21, 6.0), [m.frequency_hz for m in at21.modes]
-    assert _near(at21, 2.0) and _near(at21, 4.0)
-
     # offline gives the same estimates at the same instants
     by_stamp = {r.stamp_ns: r for r in offline_records}
     matched = [(r, by_stamp[r.stamp_ns]) for r in live if r.stamp_ns in by_stamp]
@@ -171,6 +180,12 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
         np.testing.assert_allclose(fa, fb, rtol=1e-9)
         assert a.samples_used == b.samples_used
 
+    at2 = _at(live, t0 + 2_000_000_000)
+    assert _near(at2, 2.0) and _near(at2, 4.0), [m.frequency_hz for m in at2.modes]
+    at21 = _at(live, t0 + 21_500_000_000)
+    assert _near(at21, 6.0), [m.frequency_hz for m in at21.modes]
+    assert _near(at21, 2.0) and _near(at21, 4.0)
+
 
 def test_offline_accuracy(paper_bag, offline_records):
     t0 = _start_time(paper_bag)
@@ -179,20 +194,20 @@ def test_offline_accuracy(paper_bag, offline_records):
     assert _near(_at(offline_records, t0 + 21_500_000_000), 6.0)
 
 
-def test_offline_command_line_writes_bag_csv_json(paper_bag, tmp_path):
+def test_offline_command_line_writes_bag_csv_json(short_bag, tmp_path):
     params = tmp_path / "p.yaml"
     params.write_text("sysid_node:\n  ros__parameters:\n    publish_rate: 2\n"
                       "    memory_time_constant: 1.0\n")
     out = tmp_path / "estimates"
     proc = subprocess.run(
-        [str(RUN), "sysid_node", "offline", "--bag", str(paper_bag), "--output", str(out),
+        [str(RUN), "sysid_node", "offline", "--bag", str(short_bag), "--output", str(out),
          "--params-file", str(params)],
         capture_output=True, text=True, env=_env(), timeout=180,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "offline [" in proc.stderr and "100.0%" in proc.stderr  # progress bar
     est = _read_estimates(out)
-    assert 70 <= len(est) <= 82  # 40 s at 2 Hz
+    assert 15 <= len(est) <= 17  # 8 s at 2 Hz
     assert est[-1].forgetting_factor == pytest.approx(np.exp(-1 / 100.0))
     rows = (tmp_path / "estimates.csv").read_text().splitlines()
     assert rows[0].startswith("stamp,samples_used") and len(rows) > len(est)
@@ -210,7 +225,7 @@ def test_offline_command_line_writes_bag_csv_json(paper_bag, tmp_path):
         ("bad_params", "forgetting_factor"),
     ],
 )
-def test_offline_bad_input_one_line_reason(case, fragment, paper_bag, tmp_path):
+def test_offline_bad_input_one_line_reason(case, fragment, short_bag, tmp_path):
     bag = tmp_path / "bag"
     extra: list[str] = []
     if case == "missing":
@@ -221,14 +236,14 @@ def test_offline_bad_input_one_line_reason(case, fragment, paper_bag, tmp_path):
     elif case == "truncated":
         import shutil
 
-        shutil.copytree(paper_bag, bag)
+        shutil.copytree(short_bag, bag)
         data = max((p for p in bag.iterdir() if p.name != "metadata.yaml"),
                    key=lambda p: p.stat().st_size)
         data.write_bytes(data.read_bytes()[: data.stat().st_size // 3])
     elif case == "no_topic":
         bag_io.write_signals(bag, {"/other": (np.arange(10) * 0.01, np.zeros((10, 1)), [])})
     elif case == "bad_params":
-        bag = paper_bag
+        bag = short_bag
         p = tmp_path / "p.yaml"
         p.write_text("sysid_node:\n  ros__parameters:\n    forgetting_factor: 2.0\n")
         extra = ["--params-file", str(p)]

@@ -126,7 +126,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("qos", str, "sensor_data",
        "QoS of the subscriptions: 'sensor_data' (best effort) or 'reliable'", "structural",
        choices=QOS_CHOICES),
-    _p("qos_depth", int, 200, "History depth of the subscriptions [messages]", "structural",
+    _p("qos_depth", int, 1000, "History depth of the subscriptions [messages]", "structural",
        lo=1, hi=100000),
 )
 
