@@ -76,7 +76,7 @@ def test_paper_example_accuracy_through_pipeline(records):
 
 def test_chunking_does_not_change_the_numbers(paper):
     stamps, u, y = paper
-    n = 1200
+    n = 600
     a = _run(Pipeline(), stamps[:n], u[:n], y[:n], block=1)
     b = _run(Pipeline(), stamps[:n], u[:n], y[:n], block=37)
     assert len(a) == len(b) > 0
@@ -125,6 +125,67 @@ def test_gap_counted_and_estimate_recovers(paper):
 def test_output_only_when_no_input(paper):
     stamps, _, y = paper
     pl = Pipeline()
-    recs = _run(pl, stamps[:1500], None, y[:1500])
+    recs = _run(pl, stamps[:800], None, y[:800])
     assert pl.ingest.mode == "output_only" and recs
-    assert recs[-1].samples_used > 1000
+    assert recs[-1].samples_used > 600
+
+
+# ---- message conversion (msg_convert.py) on rosbags messages, no DDS ----
+
+
+def _rosbags_types():
+    from sysid_node import bag_io
+
+    return bag_io.typestore()
+
+
+def test_signal_block_and_imu_to_arrays():
+    from sysid_node import msg_convert as mc
+
+    ts = _rosbags_types()
+    T = ts.types
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=5, nanosec=10),
+                                      frame_id="")
+    data = np.arange(12, dtype=np.float64)  # 4 samples x 3 channels, row-major
+    blk = T["sysid_msgs/msg/SignalBlock"](header=header, sample_period=0.001, channel_count=3,
+                                          data=data, channel_names=[])
+    t, v = mc.to_arrays(blk, "SignalBlock")
+    assert v.shape == (4, 3) and v[1, 0] == 3.0 and v[3, 2] == 11.0
+    np.testing.assert_array_equal(t - t[0], [0, 1_000_000, 2_000_000, 3_000_000])
+    assert t[0] == 5_000_000_010
+    bad = T["sysid_msgs/msg/SignalBlock"](header=header, sample_period=0.001, channel_count=5,
+                                          data=data, channel_names=[])
+    t, v = mc.to_arrays(bad, "SignalBlock")  # 12 values are not samples x 5 channels
+    assert v.shape == (1, 12)
+    vec = T["geometry_msgs/msg/Vector3"]
+    quat = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+    imu = T["sensor_msgs/msg/Imu"](
+        header=header, orientation=quat, orientation_covariance=np.zeros(9),
+        angular_velocity=vec(x=0.1, y=0.2, z=0.3), angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=vec(x=1.0, y=2.0, z=9.8), linear_acceleration_covariance=np.zeros(9),
+    )
+    t, v = mc.to_arrays(imu, "Imu", ["az", "wx"])
+    np.testing.assert_array_equal(v, [[9.8, 0.1]])
+
+
+def test_estimate_round_trip_through_cdr():
+    from sysid_node.pipeline import ModeRecord
+
+    from sysid_node import msg_convert as mc
+
+    ts = _rosbags_types()
+    shape = np.array([0.5 * np.exp(1j * 0.3), -1.0 + 0j])
+    rec = EstimateRecord(
+        stamp_ns=T0 + 123, model_order=6, block_rows=20, forgetting_factor=0.99,
+        sample_rate=100.0, prediction_error_rms_per_channel=np.array([0.1, np.nan]),
+        converged=True, samples_used=4000,
+        modes=[ModeRecord(3, "tracked", 2.0, 0.01, 0.02, 0.002, 0.5, 12.0, shape)],
+    )
+    raw = ts.serialize_cdr(mc.estimate_rosbags(rec, ts), "sysid_msgs/msg/ModalEstimate")
+    back = mc.estimate_from_msg(ts.deserialize_cdr(raw, "sysid_msgs/msg/ModalEstimate"))
+    assert back.stamp_ns == rec.stamp_ns and back.samples_used == 4000 and back.converged
+    m = back.modes[0]
+    assert (m.id, m.status, m.frequency_hz, m.damping_ratio) == (3, "tracked", 2.0, 0.02)
+    np.testing.assert_allclose(np.abs(m.shape), [0.5, 1.0])  # normalised to max 1
+    np.testing.assert_allclose(np.angle(m.shape[0]), 0.3 - np.pi)  # relative to the largest
+    assert np.isnan(back.prediction_error_rms_per_channel[1])
