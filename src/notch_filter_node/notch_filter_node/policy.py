@@ -77,7 +77,7 @@ class PolicyConfig:
     bandwidth_max: float = 5.0  # [Hz]
     phase_lag_budget: float = 10.0  # [deg] total of the adaptive notches at the crossover
     crossover_frequency: float = 0.5  # [Hz]
-    stale_timeout: float = 1.0  # [s]
+    stale_timeout: float = 2.0  # [s]
     fallback_ramp: float = 0.25  # [s]
     hold_time: float = 1.0  # [s]
     fade_time: float = 1.0  # [s]
@@ -190,7 +190,7 @@ class RetuningPolicy:
         fb = self.slots[-1]
         fb.target_center = config.fallback_center
         fb.target_bandwidth = config.fallback_bandwidth
-        if self.estimate is not None:
+        if self.estimate is not None and not self._stale(self.now):
             self._match(self.estimate)
         self.revision += 1
 

@@ -176,3 +176,25 @@ def test_check_config_reasons():
     assert "freq_min" in P.check_config(PolicyConfig(freq_min=5.0, freq_max=4.0))
     assert "Nyquist" in P.check_config(PolicyConfig(freq_max=150.0), fs=200.0)
     assert "fallback_ramp" in P.check_config(PolicyConfig(fallback_ramp=2.0))
+
+
+def test_disabled_channel_passes_through(runner):
+    flt = AdaptiveNotchFilter(PolicyConfig(stale_timeout=100.0), FS, 2)
+    flt.enabled = np.array([True, False])
+    x = np.repeat(sine(3.0, 4.0), 2, axis=1)
+    (y,) = runner.run([flt], [x], FS, 10, [(0.0, est(0.0, 3.0))])
+    np.testing.assert_array_equal(y[:, 1], x[:, 1])
+    assert np.max(np.abs(y[-int(FS) :, 0])) < 0.1
+
+
+def test_live_reconfigure_moves_depth_at_the_fade_rate():
+    pol = P.RetuningPolicy(PolicyConfig(stale_timeout=100.0, fade_time=1.0), FS)
+    pol.set_estimate(est(0.0, 3.0))
+    for k in range(30):
+        pol.advance(0.1 * k, 0.1)
+    assert pol.slots[0].depth == 30.0
+    pol.reconfigure(P.with_changes(pol.config, depth=40.0))
+    pol.advance(3.1, 0.1)
+    assert pol.slots[0].depth == pytest.approx(34.0)  # 40 dB / 1 s over 0.1 s
+    with pytest.raises(ValueError, match="max_notches"):
+        pol.reconfigure(P.with_changes(pol.config, max_notches=2))
