@@ -10,8 +10,8 @@ vocabulary changes the structure that is re-fitted (:class:`ModelSpec`):
 * ``parameter_varying``: local models identified at operating points of a scheduling signal
   theta and interpolated linearly between them, the LPV model (2) of Sec. IV;
 * ``input_delay``: the input delayed by d samples;
-* ``nonlinear_stiffness``: a cubic stiffness force, the extra input q = y_c^3 of one channel
-  (its feedthrough forced to zero: the force acts through the state equation only);
+* ``nonlinear_stiffness``: a cubic stiffness force, the extra input q = yhat_c^3 of one channel,
+  yhat the one-step prediction of the model without it (causal and noise-free);
 * ``sensor_bias``: offset and drift regressors (bias states with no dynamics);
 * ``feedback``: closed-loop-aware joint input-output identification: the reference is
   reconstructed as the part of u not predicted by past y and u (the controller, fitted by least
@@ -184,16 +184,19 @@ class FittedModel:
     controller: np.ndarray | None = None  # least-squares controller (feedback)
     n_outputs: int = 1
     lpv: LpvModel | None = None
+    cubic_prior: FittedModel | None = None  # model whose one-step prediction feeds the cubic
 
     # ---------------------------------------------------------------- input construction
     def inputs(self, data: ValidationData, yc: np.ndarray) -> np.ndarray:
         """Effective model inputs: the (delayed) measured input plus the cubic term."""
         u = _shift(data.u, self.spec.delay)
         if self.spec.cubic_channel is not None:
-            q = np.zeros((yc.shape[0], 1))
-            z = yc[:, self.spec.cubic_channel]
-            q[2:, 0] = (2 * z[1:-1] - z[:-2]) ** 3  # y_t extrapolated from y_{t-1}, y_{t-2}
-            u = np.hstack([u, q])
+            # the cubic force at t from the one-step prediction of y_t by the model without it
+            # (known before y_t arrives, and free of the measurement noise)
+            ch = self.spec.cubic_channel
+            prior = self.cubic_prior
+            z = prior.predict(data)[:, ch] - prior.additive(data)[:, ch]
+            u = np.hstack([u, z[:, None] ** 3])
         return u
 
     def reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -280,6 +283,9 @@ def _simulate_cubic(m: IdentifiedModel, u: np.ndarray, ch: int) -> np.ndarray:
         y[k] = m.C @ x + du @ u[k]
         q = float(np.clip(y[k, ch], -lim, lim)) ** 3
         x = m.A @ x + bu @ u[k] + bq * q
+        if not np.all(np.isfinite(x)):
+            y[k:] = np.nan
+            break
     return y
 
 
@@ -420,15 +426,19 @@ def fit(spec: ModelSpec, data: ValidationData, n_est: int) -> FittedModel:
     order = None if spec.order is None else spec.order + spec.extra_order
     phi = regressors(spec, data)
     fm = FittedModel(spec, order or 0, n_outputs=l)
+    if spec.cubic_channel is not None:
+        if not 0 <= spec.cubic_channel < l:
+            raise ValidationError(f"nonlinear_stiffness: no output channel {spec.cubic_channel}")
+        fm.cubic_prior = fit(replace(spec, cubic_channel=None), data, n_est)
     y = data.y
     if phi is not None:  # first pass: plain least squares on the raw outputs
         fm.theta, *_ = np.linalg.lstsq(phi[:n_est], y[:n_est], rcond=None)
     passes = 2 if phi is not None else 1
-    for it in range(passes):
+    for _ in range(passes):
         yc = y - fm.additive(data)
         ue = fm.inputs(data, yc)
         _fit_core(fm, data, yc, ue, n_est, order)
-        if phi is not None and (it < passes - 1 or True):
+        if phi is not None:
             _refine_theta(fm, data, phi, yc, ue, n_est)
     return fm
 

@@ -114,7 +114,11 @@ class Assessment:
 def assess(fm: FittedModel, data: ValidationData, n_est: int, max_lag: int = 20) -> Assessment:
     """One-step and free-run comparison and the residual tests on samples [n_est, N)."""
     yhat = fm.predict(data)
-    ysim = fm.simulate(data)
+    with np.errstate(all="ignore"):
+        ysim = fm.simulate(data)
+    scale = 1e6 * max(float(np.max(np.abs(data.y))), 1e-300)
+    if ysim is not None and not np.all(np.abs(ysim[n_est:]) < scale):
+        ysim = np.full_like(data.y, np.nan)  # a diverging free run: no free-run fit
     yv = data.y[n_est:]
     e = yv - yhat[n_est:]
     fit_free = None if ysim is None else rs.nrmse_fit(yv, ysim[n_est:])
@@ -456,11 +460,16 @@ def _confirm(
     eff = h.effect
     note = ""
     if eff == "input_delay":
-        best = (0.0, None, 0)
+        # increasing delays; stop two steps after the gain last improved
+        best, trend = (0.0, None, 0), 0
         for d in range(spec.delay + 1, spec.delay + MAX_DELAY_SAMPLES + 1):
-            g, fm, note_d = _trial(spec, eff, {"samples": d}, data, n_est, rms0)
+            g, fm, _ = _trial(spec, eff, {"samples": d}, data, n_est, rms0)
             if g > best[0]:
-                best = (g, fm, d)
+                best, trend = (g, fm, d), 0
+            else:
+                trend += 1
+                if trend >= 2:
+                    break
         g, fm, d = best
         if fm is not None:
             h.parameters = {"samples": d, "delay_s": d / data.fs}
@@ -494,6 +503,11 @@ def _confirm(
                     mode_frequency_hz=[float(v) for v in fr[:, k]],
                     frequency_slope_hz_per_unit=slope,
                 )
+        if fm is not None and eff == "feedback" and fm.controller is not None:
+            c = data.n_outputs + data.n_inputs
+            gy = np.abs(fm.controller[:, 0]).reshape(-1, c)[:, : data.n_outputs].max(axis=1)
+            lag = int(np.argmax(gy)) + 1
+            h.parameters = {"lag": lag, "lag_s": lag / data.fs, "lags_fitted": len(gy)}
         if fm is not None and eff == "nonlinear_stiffness":
             h.parameters["cubic_gain"] = fm.cubic_gain()
     h.trial = fm

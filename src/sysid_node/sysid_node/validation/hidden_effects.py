@@ -147,7 +147,7 @@ def make(name: str, seed: int = 0) -> Scenario:
         y = _noise(simulate(sys_a, ud + w, FS), rng)
         truth.update(samples=d, delay_s=d / FS)
     elif name == "nonlinear_stiffness":
-        k3 = 1.0e6
+        k3 = 3.0e6
         y = _noise(
             _simulate_duffing(_mode_block_system([(2.0, 0.02), (4.0, 0.05)], True), u + w, k3), rng
         )
