@@ -1,0 +1,97 @@
+"""Residual tests of sysid_node.validation.residuals against signals with known properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sysid_node.validation import residuals as rs
+from sysid_node.validation.augment import ModelSpec, modal_form
+from sysid_node.validation.data import ValidationError
+from sysid_node.validation.hidden_effects import make
+
+FS = 50.0
+
+
+def test_nrmse_fit_perfect_and_mean():
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal((500, 2))
+    assert np.allclose(rs.nrmse_fit(y, y), 100.0)
+    assert np.allclose(rs.nrmse_fit(y, np.broadcast_to(y.mean(axis=0), y.shape)), 0.0)
+
+
+def test_whiteness_passes_white_and_fails_ar1():
+    rng = np.random.default_rng(1)
+    e = rng.standard_normal(2000)
+    assert rs.whiteness(e).passed
+    ar = np.empty_like(e)
+    ar[0] = e[0]
+    for k in range(1, e.size):  # AR(1) reference signal, built once
+        ar[k] = 0.5 * ar[k - 1] + e[k]
+    w = rs.whiteness(ar)
+    assert not w.passed
+    assert w.r[0] > w.bound and abs(w.r[0] - 0.5) < 0.06
+
+
+def test_cross_correlation_past_future_and_none():
+    rng = np.random.default_rng(2)
+    n = 3000
+    u = rng.standard_normal(n)
+    noise = rng.standard_normal(n)
+    e_past = np.roll(u, 3) + noise  # e_t depends on u_{t-3}
+    x = rs.cross_correlation(e_past, u)
+    assert x.p_past < 1e-6 and x.peak("past")[0] == 3
+    u_fb = np.roll(noise, 2) + rng.standard_normal(n)  # u_t depends on e_{t-2}: feedback
+    x = rs.cross_correlation(noise, u_fb)
+    assert x.p_future < 1e-6 and x.peak("future")[0] == -2
+    assert rs.cross_correlation(noise, u).passed
+
+
+def test_spectral_peak_and_line_fraction():
+    rng = np.random.default_rng(3)
+    n = 2000
+    t = np.arange(n) / FS
+    e = rng.standard_normal(n) + 1.5 * np.sin(2 * np.pi * 7.3 * t)
+    peaks = rs.spectral_peaks(rs.residual_spectrum(e[:, None], FS))
+    assert peaks and abs(peaks[0].frequency_hz / 7.3 - 1) < 0.01
+    frac, f1, amp = rs.line_fraction(e, FS, peaks[0].frequency_hz)
+    assert frac > 0.7 and abs(f1 / 7.3 - 1) < 0.005 and abs(amp - 1.5) < 0.15
+    assert not rs.spectral_peaks(rs.residual_spectrum(rng.standard_normal((n, 1)), FS))
+
+
+def test_higher_order_correlation_detects_cubic_term():
+    rng = np.random.default_rng(4)
+    n = 3000
+    z = rng.standard_normal(n)
+    e = rng.standard_normal(n)
+    e_nl = e + 0.2 * np.roll(z**3 - 3 * z, 1)
+    assert rs.higher_order_correlation(e_nl, z)[2] < 1e-6
+    assert rs.higher_order_correlation(e, z)[2] > 1e-3
+
+
+def test_error_windows_locate_a_burst():
+    e = np.zeros((1000, 1))
+    e[600:650] = 1.0
+    t0, w = rs.error_windows(e, FS, window_s=1.0)
+    assert t0[int(np.argmax(w[:, 0]))] == pytest.approx(12.0)
+
+
+def test_unknown_effect_is_refused():
+    with pytest.raises(ValidationError, match="unknown effect"):
+        ModelSpec().with_effect("gremlins", {})
+
+
+def test_modal_form_keeps_the_poles():
+    from sysid_node.core.batch import identify
+
+    sc = make("clean", seed=5)
+    m = identify(sc.y[:1500], sc.u[:1500], fs=FS, order=4)
+    a, b, c, d, k, eig = modal_form(m, 0)
+    assert np.allclose(
+        np.sort_complex(np.linalg.eigvals(a)), np.sort_complex(np.linalg.eigvals(m.A))
+    )
+    assert np.allclose(np.abs(c[0, 0::2][:2]), 1.0)  # (C v)[ref] = 1/2 scaling of each pair
+
+
+def test_scenarios_are_reproducible():
+    a, b = make("periodic_disturbance", seed=7), make("periodic_disturbance", seed=7)
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u)
