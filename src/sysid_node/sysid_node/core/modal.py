@@ -91,6 +91,7 @@ def extract_modes(
     is_real = (np.abs(mu.imag) <= tol * np.maximum(1.0, np.abs(mu))) | ~np.isfinite(s_c)
     real_poles = np.sort(s_c[is_real & np.isfinite(s_c)].real)
     modes: list[ModalParameters] = []
+    index: list[int] = []
     phi = c @ v  # (l, n) complex shapes
     for k in np.flatnonzero((mu.imag > 0) & ~is_real):
         s = s_c[k]
@@ -102,9 +103,6 @@ def extract_modes(
             bk = w[k] @ b_all
             var_z = float(np.real(bk @ drive_cov @ bk.conj())) / max(1.0 - abs(mu[k]) ** 2, 1e-12)
             amp = float(np.sqrt(2.0 * max(var_z, 0.0)) * np.linalg.norm(phi[:, k]))
-        f_std = z_std = float("nan")
-        if a_cov_rows is not None and a_cov_cols is not None:
-            f_std, z_std = _delta_std(mu[k], w[k], v[:, k], a_cov_rows, a_cov_cols, fs)
         shape = phi[:, k].copy()
         big = shape[np.argmax(np.abs(shape))]
         if abs(big) > 0:
@@ -113,16 +111,21 @@ def extract_modes(
             ModalParameters(
                 frequency_hz=float(f),
                 damping_ratio=float(zeta),
-                frequency_std_hz=f_std,
-                damping_std=z_std,
                 amplitude=amp,
                 shape=shape,
                 pole_discrete=complex(mu[k]),
                 pole_continuous=complex(s),
             )
         )
-    modes = select_modes(modes, band, damping_bounds, max_modes)
-    return modes, real_poles
+        index.append(k)
+    selected = select_modes(modes, band, damping_bounds, max_modes)
+    if a_cov_rows is not None and a_cov_cols is not None:
+        for md in selected:
+            k = index[next(j for j, x in enumerate(modes) if x is md)]
+            md.frequency_std_hz, md.damping_std = _delta_std(
+                mu[k], w[k], v[:, k], a_cov_rows, a_cov_cols, fs
+            )
+    return selected, real_poles
 
 
 def select_modes(

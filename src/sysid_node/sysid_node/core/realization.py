@@ -76,7 +76,11 @@ def project(L: np.ndarray, layout: Layout, sum_w: float, sum_w2: float) -> Proje
     theta = _lower_solve_right(L[:r, :r], L[yf, :r])
     o_full = np.zeros((l * i, d))
     o_full[:, :n_past] = theta[:, :n_past] @ L[:n_past, :n_past]
-    u_svd, s, _ = linalg.svd(o_full[:, :n_past], full_matrices=False, check_finite=False)
+    # left singular vectors/values of L_p W_p from the small Gram matrix (l i x l i)
+    op = o_full[:, :n_past]
+    ev, u_svd = linalg.eigh(op @ op.T, check_finite=False)
+    ev, u_svd = ev[::-1], u_svd[:, ::-1]
+    s = np.sqrt(np.maximum(ev, 0.0))
     # shifted problem: Y_{i+2|2i} on [W_p^+; U_{i+2|2i}], W_p^+ = [U_{1|i+1}; Y_{1|i+1}]
     r2 = r + l
     theta2 = _lower_solve_right(L[:r2, :r2], L[yf.start + l :, :r2])

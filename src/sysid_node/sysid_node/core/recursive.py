@@ -33,6 +33,18 @@ from .model import IdentifiedModel
 from .order import select_order
 from .realization import project
 
+#: The configuration validated on the paper's Sec. II example (100 Hz, 1 input, 1 output; see
+#: test_core_recursive.py): i = 40 block rows (0.4 s of past), order 10 (at most five modes in
+#: [0, 10] Hz as in the paper), lambda = 0.99 (1 s memory), a realization every 0.1 s.
+SEED_EXAMPLE_SETTINGS: dict = {
+    "block_rows": 40,
+    "max_modes": 5,
+    "max_order": 10,
+    "forgetting_factor": 0.99,
+    "realization_interval": 10,
+    "band": (0.0, 10.0),
+}
+
 
 class RecursiveDSRA:
     """Online DSRA over blocks of samples of any length (including 1).
@@ -77,7 +89,7 @@ class RecursiveDSRA:
         change_detection: bool = True,
         change_threshold: float = 3.0,
         change_window: int = 20,
-        change_discount: float = 0.1,
+        change_discount: float = 0.3,
     ) -> None:
         if n_outputs < 1 or n_inputs < 0:
             raise InputError(f"need n_outputs >= 1 and n_inputs >= 0, got {n_outputs}, {n_inputs}")

@@ -57,10 +57,10 @@ class ModeTracker:
         frequency_gate: float = 0.05,
         damping_gate: float = 0.05,
         mac_gate: float = 0.6,
-        confirm_hits: int = 3,
+        confirm_hits: int = 2,
         lost_timeout_s: float = 1.0,
         drop_timeout_s: float = 30.0,
-        smoothing: float = 0.5,
+        smoothing: float = 1.0,
         history: int = 20,
     ) -> None:
         if not 0.0 < smoothing <= 1.0:
