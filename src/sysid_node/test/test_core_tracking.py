@@ -1,0 +1,64 @@
+"""ModeTracker: stable ids, tentative -> tracked -> lost, re-acquisition, gating."""
+
+import numpy as np
+import pytest
+from sysid_node.core import ModalParameters, ModeTracker
+
+
+def _m(f, z=0.02, shape=(1.0, 0.5)):
+    return ModalParameters(f, z, shape=np.array(shape, dtype=complex))
+
+
+def test_ids_are_stable_and_new_modes_start_tentative():
+    tr = ModeTracker(confirm_hits=2, lost_timeout_s=0.5)
+    out = tr.update([_m(2.0), _m(4.0)], 0.0)
+    assert [t.status for t in out] == ["tentative", "tentative"]
+    out = tr.update([_m(4.02), _m(2.01)], 0.1)
+    assert [(t.id, t.status) for t in out] == [(1, "tracked"), (2, "tracked")]
+    out = tr.update([_m(2.0), _m(4.0), _m(6.0)], 0.2)
+    assert [(t.id, t.status) for t in out] == [(1, "tracked"), (2, "tracked"), (3, "tentative")]
+
+
+def test_missing_mode_is_lost_after_timeout_and_reacquired_with_same_id():
+    tr = ModeTracker(confirm_hits=1, lost_timeout_s=0.5, drop_timeout_s=5.0)
+    tr.update([_m(2.0), _m(4.0)], 0.0)
+    out = tr.update([_m(2.0)], 0.3)
+    assert {t.id: t.status for t in out} == {1: "tracked", 2: "tracked"}
+    out = tr.update([_m(2.0)], 0.9)
+    assert {t.id: t.status for t in out} == {1: "tracked", 2: "lost"}
+    out = tr.update([_m(2.0), _m(4.01)], 1.5)
+    assert {t.id: t.status for t in out} == {1: "tracked", 2: "tracked"}
+    out = tr.update([_m(2.0)], 10.0)
+    assert [t.id for t in out] == [1]
+
+
+def test_gates_reject_far_frequency_damping_and_shape():
+    tr = ModeTracker(confirm_hits=1, frequency_gate=0.05, damping_gate=0.05, mac_gate=0.8)
+    tr.update([_m(10.0, 0.02, (1.0, 1.0))], 0.0)
+    for md in (_m(11.0), _m(10.0, 0.2, (1.0, 1.0)), _m(10.0, 0.02, (1.0, -1.0))):
+        out = tr.update([md], 0.1)
+        assert max(t.id for t in out) > 1  # opened a new track instead of matching id 1
+        tr.reset()
+        tr.update([_m(10.0, 0.02, (1.0, 1.0))], 0.0)
+
+
+def test_spurious_one_off_mode_never_confirmed():
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=0.3)
+    for k in range(10):
+        modes = [_m(2.0)] + ([_m(7.3)] if k == 4 else [])
+        out = tr.update(modes, 0.1 * k)
+    assert [t.frequency_hz for t in out if t.status == "tracked"] == [2.0]
+    assert all(t.frequency_hz != 7.3 for t in out)
+
+
+def test_empirical_uncertainty_reported():
+    tr = ModeTracker(confirm_hits=1)
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        out = tr.update([_m(5.0 + 0.01 * rng.standard_normal())], 0.1 * k)
+    assert out[0].mode.frequency_std_hz == pytest.approx(0.01, rel=0.5)
+
+
+def test_bad_configuration_raises():
+    with pytest.raises(ValueError):
+        ModeTracker(smoothing=0.0)
