@@ -85,7 +85,8 @@ def estimate_input(msg: Any) -> EstimateInput:
     """sysid_msgs/ModalEstimate -> the policy's plain input."""
     modes = [
         ModeInput(int(m.id), STATUS_NAMES.get(int(m.status), "tentative"), float(m.frequency),
-                  float(m.frequency_std), float(m.damping_ratio), float(m.damping_ratio_std))
+                  float(m.frequency_std), float(m.damping_ratio), float(m.damping_ratio_std),
+                  float(m.amplitude))
         for m in msg.modes
     ]
     return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged), modes)

@@ -3,8 +3,10 @@
 Input is plain data (:class:`ModeInput`, :class:`EstimateInput`), output the section parameters of
 the bank (:class:`~notch_filter_node.sections.SectionParams`) and a status per notch.
 
-- A mode gets a notch only once its status is ``tracked`` and its frequency lies in
-  ``[freq_min, freq_max]``; the new notch starts at the estimate and fades its depth in.
+- A mode gets a notch only once its status is ``tracked``, its frequency lies in
+  ``[freq_min, freq_max]`` and its damping is at most ``damping_max``; the new notch starts at
+  the estimate and fades its depth in. When there are more such modes than sections, the modes
+  that already have a notch keep it and the largest (``amplitude``) of the others come next.
 - The centre follows the estimate at most at ``slew_rate`` [Hz/s], and only when the estimate has
   moved by more than the hysteresis ``max(hysteresis, hysteresis_sigma * sigma_f)``.
 - Bandwidth: the narrowest notch that keeps ``min_attenuation`` over the uncertainty interval
@@ -49,6 +51,7 @@ class ModeInput:
     frequency_std_hz: float = math.nan
     damping_ratio: float = math.nan
     damping_std: float = math.nan
+    amplitude: float = math.nan  # participation [output unit]; ranks modes when the bank is full
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,7 @@ class PolicyConfig:
     min_attenuation: float = 20.0  # [dB] kept over the uncertainty interval
     sigma_k: float = 3.0  # [-] uncertainty interval half-width in frequency stds
     damping_gain: float = 1.0  # [-] bandwidth >= damping_gain * 2 zeta f
+    damping_max: float = 0.15  # [-] better damped modes get no notch
     bandwidth_min: float = 0.05  # [Hz]
     bandwidth_max: float = 5.0  # [Hz]
     phase_lag_budget: float = 10.0  # [deg] total of the adaptive notches at the crossover
@@ -230,8 +234,15 @@ class RetuningPolicy:
         usable = {}
         for m in est.modes:
             f = m.frequency_hz
-            if m.status == "tracked" and math.isfinite(f) and c.freq_min <= f <= self.fmax:
+            z = m.damping_ratio
+            if (m.status == "tracked" and math.isfinite(f) and c.freq_min <= f <= self.fmax
+                    and not (math.isfinite(z) and z > c.damping_max)):
                 usable[int(m.id)] = m
+        # modes that already have a notch first, then the largest (unknown amplitude last)
+        held = {s.mode_id for s in adaptive if s.state != DISABLED or s.depth > 0}
+        usable = dict(sorted(usable.items(), key=lambda kv: (
+            kv[0] not in held,
+            -(kv[1].amplitude if math.isfinite(kv[1].amplitude) else -math.inf))))
         by_id = {s.mode_id: s for s in adaptive if s.state != DISABLED or s.depth > 0}
         for mid, m in usable.items():
             slot = by_id.get(mid)

@@ -198,3 +198,22 @@ def test_live_reconfigure_moves_depth_at_the_fade_rate():
     assert pol.slots[0].depth == pytest.approx(34.0)  # 40 dB / 1 s over 0.1 s
     with pytest.raises(ValueError, match="max_notches"):
         pol.reconfigure(P.with_changes(pol.config, max_notches=2))
+
+
+def test_full_bank_keeps_its_modes_and_takes_the_largest_new_ones():
+    cfg = PolicyConfig(max_notches=2, fallback_depth=0.0, stale_timeout=100.0, damping_max=0.1)
+    pol = P.RetuningPolicy(cfg, FS)
+
+    def mode(i, f, amp, zeta=0.02):
+        return ModeInput(i, "tracked", f, 0.01, zeta, 0.002, amp)
+
+    pol.set_estimate(EstimateInput(0.0, True, [mode(1, 3.0, 1.0), mode(2, 5.0, 2.0),
+                                               mode(3, 7.0, 5.0, zeta=0.3)]))
+    assert sorted(s.mode_id for s in pol.slots[:-1] if s.state == P.TRACKING) == [1, 2]
+    pol.set_estimate(EstimateInput(0.1, True, [mode(1, 3.0, 1.0), mode(2, 5.0, 2.0),
+                                               mode(4, 9.0, 9.0)]))
+    assert sorted(s.mode_id for s in pol.slots[:-1] if s.state == P.TRACKING) == [1, 2]
+    pol = P.RetuningPolicy(cfg, FS)
+    pol.set_estimate(EstimateInput(0.0, True, [mode(1, 3.0, 1.0), mode(2, 5.0, 2.0),
+                                               mode(4, 9.0, 9.0)]))
+    assert sorted(s.mode_id for s in pol.slots[:-1] if s.state == P.TRACKING) == [2, 4]
