@@ -13,7 +13,8 @@ input_delay            residual correlated with past inputs (cross-correlation p
 nonlinear_stiffness    residual correlated with the cubic Hermite term of an output
                        (higher-order correlation test)
 sensor_bias            non-zero residual mean or trend (t-tests on block means)
-feedback               residual correlated with future inputs (cross-correlation portmanteau)
+feedback               past outputs predicting the input (Granger F-test) or the residual
+                       correlated with future inputs (cross-correlation portmanteau)
 =====================  =======================================================================
 
 A hypothesis whose gate fires is confirmed by a trial re-fit with the effect added; its score is
@@ -387,11 +388,15 @@ def diagnose(
         key_f = min(assessment.xcorr, key=lambda k: assessment.xcorr[k].p_future)
         xf = assessment.xcorr[key_f]
         lag_f, val_f = xf.peak("future")
-        hf.p_value = xf.p_future
+        grang = [rs.granger_feedback(data.u[:, j], data.y) for j in range(data.n_inputs)]
+        j_g = int(np.argmin([g[1] for g in grang]))
+        f_g, p_g = grang[j_g]
+        hf.p_value = min(xf.p_future, p_g)
         hf.parameters = {"lag": -lag_f, "lag_s": -lag_f / fs}
         hf.evidence = (
-            f"residual ch{key_f[0]} correlated with FUTURE input {key_f[1]}: portmanteau "
-            f"p={xf.p_future:.1e}, peak {val_f:+.2f} at lag {lag_f} (99 % bound {xf.bound:.2f})"
+            f"past outputs predict input {j_g} (Granger F={f_g:.1f}, p={p_g:.1e}); residual "
+            f"ch{key_f[0]} vs FUTURE input {key_f[1]}: portmanteau p={xf.p_future:.1e}, peak "
+            f"{val_f:+.2f} at lag {lag_f} (99 % bound {xf.bound:.2f})"
         )
     else:
         hd.evidence = hf.evidence = "output-only data: no input to correlate with"

@@ -12,7 +12,7 @@ parameter_varying           the 4 Hz mode moves 3-5 Hz with ``/airspeed`` 40-80 
 input_delay                 the excitation reaches the structure 3 samples (60 ms) late
 nonlinear_stiffness         a cubic spring -k3 y^3 acting where the input acts (Duffing)
 sensor_bias                 an offset plus a drift of the sensor
-feedback                    closed loop u = r - g y(t-1) with an unmeasured disturbance
+feedback                    closed loop u = r - g y(t-1), small r, strong unmeasured disturbance
 ==========================  ==================================================================
 
 All random draws come from ``numpy.random.default_rng(seed)``.
@@ -158,8 +158,10 @@ def make(name: str, seed: int = 0) -> Scenario:
         y = _noise(y0, rng) + 0.3 * s + 0.015 * s * t[:, None]
         truth.update(offset=0.3 * s, drift_per_s=0.015 * s)
     elif name == "feedback":
-        r = u
-        w = 2.0 * w / PROCESS_NOISE
+        # active control in turbulence: a small reference excitation, a strong unmeasured
+        # disturbance, the recorded /excitation is the actuator command u = r - g y(t-1)
+        r = 0.2 * u
+        w = 5.0 * w / PROCESS_NOISE
         y, u = _simulate_closed_loop(sys_a, r, w, gain=3.0, rng=rng)
         truth.update(lag=1, gain=3.0)
     else:

@@ -296,3 +296,30 @@ def line_fraction(e: np.ndarray, fs: float, f0: float, rel_band: float = 0.1) ->
     p_band = float(np.mean(band**2))
     frac = float(np.mean(fit**2) / p_band) if p_band > 0 else 0.0
     return min(frac, 1.0), f1, float(np.hypot(*th))
+
+
+def granger_feedback(u: np.ndarray, y: np.ndarray, lags: int = 10) -> tuple[float, float]:
+    """Does the past output help predict the input (feedback, y -> u)? F-test of
+    u_t on [u_{t-1..t-L}, y_{t-1..t-L}] against u_t on [u_{t-1..t-L}] (Granger).
+
+    ``u`` (N,) is one input channel, ``y`` (N, l) the outputs. Returns (F, p-value); in open
+    loop the past output carries no information about the input.
+    """
+    u = np.asarray(u, float).ravel()
+    y = np.atleast_2d(np.asarray(y, float).T).T
+    n = u.size
+
+    def lagged(x: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            [x[lags - k : n - k, c] for k in range(1, lags + 1) for c in range(x.shape[1])]
+        )
+
+    target = u[lags:] - u[lags:].mean()
+    x_r = lagged(u[:, None] - u.mean())
+    x_f = np.hstack([x_r, lagged(y - y.mean(axis=0))])
+    ss_r = float(np.sum((target - x_r @ np.linalg.lstsq(x_r, target, rcond=None)[0]) ** 2))
+    ss_f = float(np.sum((target - x_f @ np.linalg.lstsq(x_f, target, rcond=None)[0]) ** 2))
+    q = x_f.shape[1] - x_r.shape[1]
+    dof = target.size - x_f.shape[1]
+    f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
+    return float(f), float(stats.f.sf(f, q, dof))
