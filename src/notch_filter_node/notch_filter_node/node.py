@@ -310,6 +310,9 @@ class NotchFilterNode(Node):
                 self._build(fs, channels)
         if self._estimate is not None and self.filter.policy.estimate is None:
             self.filter.set_estimate(self._estimate)
+        if not np.isfinite(x).all():
+            self._bad_input("nonfinite", "non-finite sample values: output NaN there, filter "
+                            "memory kept clean")
         t_last = float(stamps[-1]) * 1e-9
         self._last_stamp_s = t_last
         y = self.filter.process(x, t_last)

@@ -220,8 +220,10 @@ class RetuningPolicy:
         return float(np.clip(bw, c.bandwidth_min, c.bandwidth_max))
 
     def set_estimate(self, est: EstimateInput) -> None:
-        """Take a new estimate (older ones than the current are ignored)."""
-        if self.estimate is not None and est.stamp < self.estimate.stamp:
+        """Take a new estimate. One older than the current is ignored (out of order), unless
+        it is older by more than ``stale_timeout``: the estimator restarted (e.g. a replay)."""
+        cur = self.estimate
+        if cur is not None and 0 < cur.stamp - est.stamp < self.config.stale_timeout:
             return
         self.estimate = est
         if self._stale(est.stamp if not math.isfinite(self.now) else max(self.now, est.stamp)):

@@ -217,3 +217,12 @@ def test_full_bank_keeps_its_modes_and_takes_the_largest_new_ones():
     pol.set_estimate(EstimateInput(0.0, True, [mode(1, 3.0, 1.0), mode(2, 5.0, 2.0),
                                                mode(4, 9.0, 9.0)]))
     assert sorted(s.mode_id for s in pol.slots[:-1] if s.state == P.TRACKING) == [2, 4]
+
+
+def test_out_of_order_estimate_ignored_restart_accepted():
+    pol = P.RetuningPolicy(PolicyConfig(stale_timeout=2.0, fallback_depth=0.0), FS)
+    pol.set_estimate(est(10.0, 3.0))
+    pol.set_estimate(est(9.9, 4.0))  # late arrival
+    assert pol.estimate.stamp == 10.0
+    pol.set_estimate(est(1.0, 4.0))  # the estimator restarted
+    assert pol.estimate.stamp == 1.0
