@@ -2,7 +2,7 @@
 it sustains on one core, for several block sizes, with the notches fixed and while all of them
 retune.
 
-    ros2_ws/env python benchmarks/bench_notch.py [--fs 1000] [--seconds 0.4]
+    ros2_ws/env python benchmarks/bench_notch.py [--fs 1000] [--seconds 0.4] [--substep 8]
 
 Cost = wall time of AdaptiveNotchFilter.process (policy + bank) per sample of all channels,
 median of 5 repeats; "max rate" = 1 / cost: the highest sample rate one core doing nothing else
@@ -32,11 +32,13 @@ def estimate(t: float, retune: bool, k: int) -> EstimateInput:
     return EstimateInput(t, True, modes)
 
 
-def measure(fs: float, block: int, retune: bool, seconds: float, seed: int = 0) -> float:
+def measure(
+    fs: float, block: int, retune: bool, seconds: float, seed: int = 0, substep: int = 8
+) -> float:
     """Seconds of wall time per sample (all channels)."""
     cfg = PolicyConfig(max_notches=NOTCHES, slew_rate=2.0, phase_lag_budget=180.0,
                        fallback_depth=0.0, stale_timeout=100.0)
-    flt = AdaptiveNotchFilter(cfg, fs, CHANNELS)
+    flt = AdaptiveNotchFilter(cfg, fs, CHANNELS, substep)
     rng = np.random.default_rng(seed)
     n = max(int(seconds * fs) // block, 20) * block
     x = rng.normal(size=(n, CHANNELS))
@@ -65,19 +67,25 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fs", type=float, default=1000.0, help="sample rate of the data [Hz]")
     ap.add_argument("--seconds", type=float, default=0.4, help="data per repeat [s]")
+    ap.add_argument("--substep", type=int, default=8,
+                    help="samples per coefficient step while notches move (node: substep)")
     args = ap.parse_args(argv)
+    if args.substep < 1:
+        print("bench_notch: error: --substep must be at least 1", file=sys.stderr)
+        return 1
     if not args.fs > 2 * max(MODES_HZ) / 0.4:
         print(f"bench_notch: error: --fs must exceed {2 * max(MODES_HZ) / 0.4:g} Hz",
               file=sys.stderr)
         return 1
     print(f"adaptive notch bank: {CHANNELS} channels x {NOTCHES} notches, fs = {args.fs:g} Hz, "
-          "policy + bank, median of 5 repeats")
+          f"substep {args.substep}, policy + bank, median of 5 repeats")
     print(f"{'block':>6} {'notches':>9} {'us/sample':>10} {'us/ch-sample':>13} "
           f"{'us/block':>10} {'max rate [kHz]':>15}")
     for retune in (False, True):
         for block in BLOCKS:
             cost = statistics.median(
-                measure(args.fs, block, retune, args.seconds, seed) for seed in range(5)
+                measure(args.fs, block, retune, args.seconds, seed, args.substep)
+                for seed in range(5)
             )
             print(f"{block:>6} {'retuning' if retune else 'fixed':>9} {cost * 1e6:>10.2f} "
                   f"{cost * 1e6 / CHANNELS:>13.2f} {cost * 1e6 * block:>10.1f} "
