@@ -125,10 +125,13 @@ class Harness:
         assert fut.done(), f"{name} timed out"
         return fut.result()
 
-    def set_param(self, name: str, value: float):
+    def set_param(self, name: str, value: float | int):
         req = SetParameters.Request()
-        req.parameters = [ParameterMsg(name=name, value=ParameterValue(
-            type=ParameterType.PARAMETER_DOUBLE, double_value=float(value)))]
+        if isinstance(value, int):
+            pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+        else:
+            pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=float(value))
+        req.parameters = [ParameterMsg(name=name, value=pv)]
         return self.call("set_parameters", req).results[0]
 
     def get_params(self, names: list[str]) -> list:
@@ -225,11 +228,19 @@ def test_parameters_command_line_file_and_services(data, harness, tmp_path):
         assert after.forgetting_factor == pytest.approx(0.95)
         assert after.samples_used > before.samples_used  # estimate kept, not reset
         assert _near(after, 2.0) and _near(after, 4.0), [m.frequency_hz for m in after.modes]
+
+        # a structural parameter resets the estimator (with a log line)
+        res = harness.set_param("block_rows", 12)
+        assert res.successful, res.reason
+        n2 = n1 + 500
+        harness.send(stamps[n2 : n2 + 300], y[n2 : n2 + 300], u[n2 : n2 + 300])
+        reset = harness.wait_estimate(stamps[n2 + 280])
+        assert reset.block_rows == 12 and reset.samples_used < 300
     finally:
         code = stop_node(proc)
     text = (tmp_path / "node.log").read_text()
     assert code == 0 and "Traceback" not in text, text[-2000:]
-    assert "rejected" in text
+    assert "rejected" in text and "structural parameter(s) changed (block_rows)" in text
 
 
 def test_invalid_command_line_parameter_is_one_line_error(tmp_path):
