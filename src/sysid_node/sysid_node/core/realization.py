@@ -11,8 +11,9 @@ steps can be carried out on the coefficient matrices ``M`` (``Q`` has orthonorma
 2. SVD of ``L_p [U_{1|i}; Y_{1|i}] = U S V'``;
 3. Kalman states (A3) ``X_{i+1} = S_1^{1/2} V_1' = S_1^{-1/2} U_1' L_p W_p`` and the shifted
    states ``X_{i+2}`` from the same problem with one more past block row;
-4. (A4) ``[X_{i+2}; Y_{i+1|i+1}] = [A B; C D] [X_{i+1}; U_{i+1|i+1}]`` by least squares; its
-   residuals give the noise covariances Q, S, R (process, cross, measurement).
+4. (A4) ``[X_{i+2}; Y_{i+1|i+1}] = [A B; C D] [X_{i+1}; U_{i+1|i+1}]``, with A and C taken from
+   the shift invariance of ``Gamma_i = U_1 S_1^{1/2}`` (see :func:`realize`) and B, D by least
+   squares; its residuals give the noise covariances Q, S, R (process, cross, measurement).
 """
 
 from __future__ import annotations
@@ -91,7 +92,16 @@ def project(L: np.ndarray, layout: Layout, sum_w: float, sum_w2: float) -> Proje
 
 
 def realize(proj: Projection, n: int) -> Realization:
-    """Steps 3-4: Kalman states (A3) of order n and the least-squares realization (A4)."""
+    """Steps 3-4: Kalman states (A3) of order n and the realization (A4).
+
+    A and C come from the shift invariance of the extended observability matrix
+    Gamma_i = U_1 S_1^{1/2} (C = first block row, Gamma_i^- A = Gamma_i^+), in the basis of the
+    (A3) states; B and D then follow from (A4) by least squares with A and C fixed. Taking A
+    from the state regression (A4) as printed is biased for finite i when the Kalman filter
+    converges slowly (lightly damped modes with output noise, short records: the paper's Sec. II
+    example at i = 20 and 2 s of data); the shift form is not (Van Overschee & De Moor 1996,
+    Sec. 4.3, their "robust" variant). The (A4) residuals give the noise covariances Q, S, R.
+    """
     lay = proj.layout
     m, l = lay.m, lay.l
     L = proj.L
@@ -100,27 +110,33 @@ def realize(proj: Projection, n: int) -> Realization:
     gamma = u1 * np.sqrt(s1)
     x1 = (u1.T @ proj.o_full) / np.sqrt(s1)[:, None]
     x2 = linalg.lstsq(gamma[:-l], proj.o_shift, check_finite=False)[0]
+    a_mat = linalg.lstsq(gamma[:-l], gamma[l:], check_finite=False)[0]
+    c_mat = gamma[:l]
     uf1 = L[lay.uf.start : lay.uf.start + m]
     yf1 = L[lay.yf.start : lay.yf.start + l]
+    tgt = np.vstack([x2 - a_mat @ x1, yf1 - c_mat @ x1])
+    if m:  # (A4) with A, C fixed: [B; D] by QR of the input coefficients
+        bd = linalg.lstsq(uf1.T, tgt.T, check_finite=False)[0].T
+        res = tgt - bd @ uf1
+    else:
+        bd = np.zeros((n + l, 0))
+        res = tgt
+    cov = res @ res.T / max(proj.sum_w, 1e-300)
+    cov = 0.5 * (cov + cov.T)
+    # (X X')^{-1} of the state regressors for the delta-method covariance of A (modal.py)
     reg = np.vstack([x1, uf1])
-    tgt = np.vstack([x2, yf1])
-    # (A4) by QR of the regressor coefficients
-    qr_q, qr_r = linalg.qr(reg.T, mode="economic", check_finite=False)
+    qr_r = linalg.qr(reg.T, mode="r", check_finite=False)[0][: n + m]
     diag = np.abs(np.diag(qr_r))
     tol = max(diag.max(initial=0.0), 1e-300) * 1e-12
     qr_r = qr_r + np.diag(np.where(diag < tol, tol, 0.0))
-    g = linalg.solve_triangular(qr_r, qr_q.T @ tgt.T, check_finite=False).T
-    res = tgt - g @ reg
-    cov = res @ res.T / max(proj.sum_w, 1e-300)
-    cov = 0.5 * (cov + cov.T)
     rinv = linalg.solve_triangular(qr_r, np.eye(n + m), check_finite=False)
-    p_reg = rinv @ rinv.T  # (reg reg')^{-1}
+    p_reg = rinv @ rinv.T
     factor = proj.sum_w2 / max(proj.sum_w, 1e-300)
     return Realization(
-        A=g[:n, :n],
-        B=g[:n, n:],
-        C=g[n:, :n],
-        D=g[n:, n:],
+        A=a_mat,
+        B=bd[:n],
+        C=c_mat,
+        D=bd[n:],
         Q=cov[:n, :n],
         S=cov[:n, n:],
         R=cov[n:, n:],

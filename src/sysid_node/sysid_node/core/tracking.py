@@ -2,8 +2,11 @@
 
 Each update matches the new modes to the existing tracks by a gated cost in frequency, damping
 and mode shape (MAC), solved as an assignment problem (``scipy.optimize.linear_sum_assignment``).
-Unmatched modes open tentative tracks, confirmed after ``confirm_hits`` hits (consistency across
-updates rejects one-off spurious modes); a track not seen for ``lost_timeout_s`` is lost (and
+Unmatched modes open tentative tracks, unless they fall inside the gate of a track that took
+another mode (a split of one physical mode). Two live tracks that come within the frequency and
+MAC gates and twice the damping gate of each other are merged into the one with more hits.
+Tentative tracks are confirmed after ``confirm_hits`` hits (consistency across updates rejects
+one-off spurious modes); a track not seen for ``lost_timeout_s`` is lost (and
 may be re-acquired with the same id), and dropped after ``drop_timeout_s``. Tentative tracks
 that miss for ``lost_timeout_s`` are discarded. Reported values are exponentially smoothed over
 the hits; the standard deviations combine the delta-method value of the latest realization
@@ -49,7 +52,8 @@ class ModeTracker:
 
     ``frequency_gate`` relative frequency difference, ``damping_gate`` absolute damping-ratio
     difference and ``mac_gate`` minimum MAC (used when shapes have more than one component)
-    bound a match; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing).
+    bound a match, measured from the median of the last ``reference_hits`` raw estimates of the
+    track; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing).
     """
 
     def __init__(
@@ -62,6 +66,7 @@ class ModeTracker:
         drop_timeout_s: float = 30.0,
         smoothing: float = 1.0,
         history: int = 20,
+        reference_hits: int = 5,
     ) -> None:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
@@ -75,6 +80,7 @@ class ModeTracker:
         self.drop_timeout_s = drop_timeout_s
         self.smoothing = smoothing
         self.history = history
+        self.reference_hits = max(int(reference_hits), 1)
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
 
@@ -83,9 +89,13 @@ class ModeTracker:
         self._next_id = 1
 
     def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
-        f0 = max(tr.mode.frequency_hz, 1e-12)
+        # gate against the median of the recent raw estimates: one wild realization (e.g. while
+        # the data straddle an abrupt change) does not carry the track away
+        recent = np.array(tr.history)[-self.reference_hits :]
+        f0 = max(float(np.median(recent[:, 0])), 1e-12)
+        z0 = float(np.median(recent[:, 1]))
         cf = abs(md.frequency_hz - f0) / f0 / self.frequency_gate
-        cz = abs(md.damping_ratio - tr.mode.damping_ratio) / self.damping_gate
+        cz = abs(md.damping_ratio - z0) / self.damping_gate
         cm = 0.0
         if np.size(md.shape) > 1 and np.size(tr.mode.shape) == np.size(md.shape):
             cm = (1.0 - mac(tr.mode.shape, md.shape)) / max(1.0 - self.mac_gate, 1e-9)
@@ -97,6 +107,7 @@ class ModeTracker:
         """Match ``modes`` (one realization at data time ``t`` [s]); returns the live tracks
         (tentative, tracked and lost) sorted by frequency."""
         matched: set[int] = set()
+        duplicate: set[int] = set()
         if self.tracks and modes:
             cost = np.array([[self._cost(tr, md) for md in modes] for tr in self.tracks])
             big = 1e6
@@ -105,14 +116,18 @@ class ModeTracker:
                 if np.isfinite(cost[r, c]):
                     self._hit(self.tracks[r], modes[c], t)
                     matched.add(c)
+            # an unmatched mode inside the gate of a track that took another mode is a split of
+            # that mode (two poles of an over-sized model on one physical mode): no new track
+            duplicate = set(np.flatnonzero(np.isfinite(cost).any(axis=0)).tolist()) - matched
         for c, md in enumerate(modes):
-            if c not in matched:
+            if c not in matched and c not in duplicate:
                 tr = TrackedMode(
                     self._next_id, "tentative", md, t, t, 0, deque(maxlen=self.history)
                 )
                 self._next_id += 1
                 self._hit(tr, md, t, first=True)
                 self.tracks.append(tr)
+        self._merge_duplicates()
         keep = []
         for tr in self.tracks:
             age = t - tr.last_seen
@@ -125,6 +140,33 @@ class ModeTracker:
             keep.append(tr)
         self.tracks = keep
         return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
+
+    def _merge_duplicates(self) -> None:
+        """Two live tracks inside each other's gate follow one physical mode: keep the older."""
+        live = sorted(
+            (tr for tr in self.tracks if tr.status != "lost"), key=lambda tr: (-tr.hits, tr.id)
+        )
+        drop: set[int] = set()
+        for a, old in enumerate(live):
+            if old.id in drop:
+                continue
+            for young in live[a + 1 :]:
+                if young.id not in drop and self._same_mode(old, young):
+                    drop.add(young.id)
+        if drop:
+            self.tracks = [tr for tr in self.tracks if tr.id not in drop]
+
+    def _same_mode(self, a: TrackedMode, b: TrackedMode) -> bool:
+        """Frequency and damping (medians of the recent estimates) within the frequency gate and
+        twice the damping gate (damping estimates scatter most), shapes within the MAC gate."""
+        fa, za = np.median(np.array(a.history)[-self.reference_hits :], axis=0)
+        fb, zb = np.median(np.array(b.history)[-self.reference_hits :], axis=0)
+        if abs(fa - fb) > self.frequency_gate * max(fa, 1e-12):
+            return False
+        if abs(za - zb) > 2.0 * self.damping_gate:
+            return False
+        sa, sb = a.mode.shape, b.mode.shape
+        return np.size(sa) <= 1 or np.size(sa) != np.size(sb) or mac(sa, sb) >= self.mac_gate
 
     def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
         tr.history.append((md.frequency_hz, md.damping_ratio))
