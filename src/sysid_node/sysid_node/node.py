@@ -260,9 +260,15 @@ class SysidNode(Node):
                     f"estimator {self._in_flight} samples behind: {len(items)} message(s) "
                     "dropped", throttle_duration_sec=5.0)
                 continue
-            n = sum(len(t) for _, t, _ in items)
+            # one array per stream and channel count: far less to pickle than many small ones
+            stacked = [
+                (stream, t, v)
+                for stream in ("output", "input")
+                for t, v in mc.stack_blocks([(t, v) for s_, t, v in items if s_ == stream])
+            ]
+            n = sum(len(t) for _, t, _ in stacked)
             self._in_flight += n
-            self._inbox.put(("data", items, n))
+            self._inbox.put(("data", stacked, n))
 
     def _receive_loop(self) -> None:
         """Publish the worker's estimates, log its lines, keep its status."""
