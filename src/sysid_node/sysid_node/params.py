@@ -71,7 +71,7 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Data held back to put out-of-order samples in stamp order [s] (adds this latency)",
        "structural", lo=0.0, hi=5.0, unit="s"),
     # -- estimator (structural) --
-    _p("block_rows", int, 20, "Hankel block rows i of the recursive DSRA (A1) [-]",
+    _p("block_rows", int, 35, "Hankel block rows i of the recursive DSRA (A1) [-]",
        "structural", lo=2, hi=200),
     _p("max_order", int, 0,
        "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
@@ -94,7 +94,7 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=0.0, hi=1.0),
     _p("damping_max", float, 0.5, "Largest damping ratio of a reported mode [-]",
        lo=0.0, hi=1.0),
-    _p("realization_rate", float, 10.0,
+    _p("realization_rate", float, 20.0,
        "Rate of the SVD-based realization of the model from the RLS factor [Hz of data time]",
        lo=0.1, hi=10000.0, unit="Hz"),
     _p("publish_rate", float, 10.0, "Rate of /modal_estimate [Hz of data time]",
@@ -106,7 +106,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     # -- mode tracking gates (live) --
     _p("tracking_frequency_tolerance", float, 0.05,
        "Relative frequency gate for matching a mode to a tracked one [-]", lo=0.001, hi=0.5),
-    _p("tracking_confirm_count", int, 3,
+    _p("tracking_confirm_count", int, 2,
        "Successive matches before a tentative mode becomes tracked [-]", lo=1, hi=100),
     _p("tracking_lost_timeout", float, 2.0,
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,

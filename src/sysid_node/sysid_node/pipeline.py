@@ -167,26 +167,13 @@ class Pipeline:
         )
 
     def _tracker_kwargs(self, cls: type) -> dict[str, Any]:
-        """Tracking gates, passed under whichever names the tracker accepts."""
-        import inspect
-
-        try:
-            accepted = set(inspect.signature(cls).parameters)
-        except (TypeError, ValueError):
-            accepted = set()
+        """Tracking gates of the ModeTracker from the parameters."""
         v = self.values
-        options = {
-            ("frequency_gate", "frequency_tolerance"): v["tracking_frequency_tolerance"],
-            ("confirm_hits", "confirm_count"): v["tracking_confirm_count"],
-            ("lost_timeout_s", "lost_timeout"): v["tracking_lost_timeout"],
+        return {
+            "frequency_gate": v["tracking_frequency_tolerance"],
+            "confirm_hits": v["tracking_confirm_count"],
+            "lost_timeout_s": v["tracking_lost_timeout"],
         }
-        kw: dict[str, Any] = {}
-        for names, value in options.items():
-            for n in names:
-                if n in accepted:
-                    kw[n] = value
-                    break
-        return kw
 
     def _realization_interval(self) -> int:
         return max(1, round(self.sample_rate / self.values["realization_rate"]))

@@ -227,7 +227,10 @@ def test_parameters_command_line_file_and_services(data, harness, tmp_path):
         after = harness.wait_estimate(stamps[n1 + 480])
         assert after.forgetting_factor == pytest.approx(0.95)
         assert after.samples_used > before.samples_used  # estimate kept, not reset
-        assert _near(after, 2.0) and _near(after, 4.0), [m.frequency_hz for m in after.modes]
+        # lambda = 0.95 is a memory of 20 samples at 100 Hz (0.2 s, less than one period of
+        # the 2 Hz mode): the modes are still followed, within the tracker's 5 % gate
+        near = [_near(after, f, 0.05) for f in (2.0, 4.0)]
+        assert all(near), [m.frequency_hz for m in after.modes]
 
         # a structural parameter resets the estimator (with a log line)
         res = harness.set_param("block_rows", 12)
