@@ -37,6 +37,8 @@ class TrackedMode:
     last_seen: float
     hits: int
     history: deque = field(default_factory=lambda: deque(maxlen=20), repr=False)
+    #: (frequency [Hz], damping ratio): medians of the recent raw estimates, the gate reference
+    reference: tuple[float, float] = (float("nan"), float("nan"))
 
     @property
     def frequency_hz(self) -> float:
@@ -91,9 +93,8 @@ class ModeTracker:
     def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
         # gate against the median of the recent raw estimates: one wild realization (e.g. while
         # the data straddle an abrupt change) does not carry the track away
-        recent = np.array(tr.history)[-self.reference_hits :]
-        f0 = max(float(np.median(recent[:, 0])), 1e-12)
-        z0 = float(np.median(recent[:, 1]))
+        f0, z0 = tr.reference
+        f0 = max(f0, 1e-12)
         cf = abs(md.frequency_hz - f0) / f0 / self.frequency_gate
         cz = abs(md.damping_ratio - z0) / self.damping_gate
         cm = 0.0
@@ -159,8 +160,8 @@ class ModeTracker:
     def _same_mode(self, a: TrackedMode, b: TrackedMode) -> bool:
         """Frequency and damping (medians of the recent estimates) within the frequency gate and
         twice the damping gate (damping estimates scatter most), shapes within the MAC gate."""
-        fa, za = np.median(np.array(a.history)[-self.reference_hits :], axis=0)
-        fb, zb = np.median(np.array(b.history)[-self.reference_hits :], axis=0)
+        fa, za = a.reference
+        fb, zb = b.reference
         if abs(fa - fb) > self.frequency_gate * max(fa, 1e-12):
             return False
         if abs(za - zb) > 2.0 * self.damping_gate:
@@ -170,6 +171,11 @@ class ModeTracker:
 
     def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
         tr.history.append((md.frequency_hz, md.damping_ratio))
+        recent = list(tr.history)[-self.reference_hits :]
+        tr.reference = (
+            float(np.median([h[0] for h in recent])),
+            float(np.median([h[1] for h in recent])),
+        )
         tr.hits += 1
         tr.last_seen = t
         a = 1.0 if first else self.smoothing
