@@ -49,35 +49,58 @@ def test_table_json_and_saved_model(tmp_path):
     assert model.is_file()
 
 
-def _one_line_error(p: subprocess.CompletedProcess) -> str:
-    assert p.returncode != 0
-    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, p.stderr
-    assert "Traceback" not in p.stderr
+def _one_line_error(capsys, *args: str) -> str:
+    """Run main() in-process; it must return non-zero with exactly one line on stderr."""
+    from sysid_node.tools.validate import main
+
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # argparse errors
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code != 0
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
     return lines[0]
 
 
-def test_missing_topic_one_line():
+def test_error_exit_from_the_executable():
     p = _run("--bag", str(BAGS / "clean"), "--output", "/nope")
-    assert "/nope" in _one_line_error(p)
+    assert p.returncode == 2
+    assert len(p.stderr.strip().splitlines()) == 1 and "/nope" in p.stderr
 
 
-def test_too_short_to_split_one_line():
-    p = _run("--bag", str(BAGS / "clean"), "--split", "0.05", "--block-rows", "60")
-    assert "too short" in _one_line_error(p)
+def test_missing_topic_one_line(capsys):
+    assert "/nope" in _one_line_error(
+        capsys, "--bag", str(BAGS / "clean"), "--input", "/nope2", "--output", "/nope"
+    )
 
 
-def test_mismatched_model_one_line(tmp_path):
+def test_missing_bag_one_line(capsys, tmp_path):
+    assert "not found" in _one_line_error(capsys, "--bag", str(tmp_path / "none"))
+
+
+def test_too_short_to_split_one_line(capsys):
+    msg = _one_line_error(
+        capsys, "--bag", str(BAGS / "clean"), "--split", "0.05", "--block-rows", "60"
+    )
+    assert "too short" in msg
+
+
+def test_mismatched_model_one_line(capsys, tmp_path):
     from sysid_node.core.batch import identify
 
     rng = np.random.default_rng(0)
     m = identify(rng.standard_normal((600, 2)), rng.standard_normal((600, 1)), fs=50.0, order=2)
     path = tmp_path / "two_outputs.npz"
     m.save(path)
-    p = _run("--bag", str(BAGS / "clean"), "--model", str(path))
-    assert "output" in _one_line_error(p)
+    assert "output" in _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--model", str(path))
 
 
-def test_unknown_effect_one_line():
-    p = _run("--bag", str(BAGS / "clean"), "--add", "gremlins")
-    assert "gremlins" in _one_line_error(p)
+def test_unknown_effect_one_line(capsys):
+    assert "gremlins" in _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--add", "gremlins")
+
+
+def test_bad_option_one_line(capsys):
+    assert "--split" in _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--split", "x")

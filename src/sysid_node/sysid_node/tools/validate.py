@@ -134,6 +134,7 @@ def _row(label: str, a: Assessment) -> str:
 
 
 def run(args: argparse.Namespace) -> dict:
+    adds = [parse_add(text) for text in args.add]  # refuse a bad --add before any work
     data = load_bag(
         args.bag,
         output_topic=args.output,
@@ -158,16 +159,21 @@ def run(args: argparse.Namespace) -> dict:
     hyps = diagnose(data, n_est, spec, base, before, signal=args.signal)
     current, cur_a, cur_spec = base, before, spec
     added: list[str] = []
-    for text in args.add:
-        name, params = parse_add(text)
-        diag = next(h for h in hyps if h.effect == name).parameters
-        merged = {**{k: v for k, v in diag.items() if v is not None}, **params}
+    for name, params in adds:
+        diag = next(h for h in hyps if h.effect == name)
+        merged = {**{k: v for k, v in diag.parameters.items() if v is not None}, **params}
         if name == "input_delay":
             merged.setdefault("fs", data.fs)
         cur_spec = cur_spec.with_effect(name, merged)
         added.append(name)
+    if len(adds) == 1 and not adds[0][1]:
+        diag = next(h for h in hyps if h.effect == adds[0][0])
+        if diag.trial is not None:  # the diagnosis already re-fitted exactly this structure
+            current = diag.trial
+            cur_spec = current.spec
     if added:
-        current = fit(cur_spec, data, n_est)
+        if current is base:
+            current = fit(cur_spec, data, n_est)
         cur_a = assess(current, data, n_est, args.max_lag)
     if args.auto:
         cur_hyps = (

@@ -173,16 +173,16 @@ def _simulate_lpv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Linear time-varying simulation: the 4 Hz block of Sec. II follows lpv_frequency(v).
 
     The matrices change every sample (ZOH per sample), so this recursion is sample by sample;
-    the discretisations are cached on a 0.05 m/s grid of v.
+    the discretisations are cached on a 0.2 m/s grid of v (0.01 Hz steps).
     """
     cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     x = np.zeros(4)
     y = np.empty((u.shape[0], 1))
     c = np.ones(4)
     for k in range(u.shape[0]):
-        key = int(round(v[k] * 20))
+        key = int(round(v[k] * 5))
         if key not in cache:
-            sysk = _mode_block_system([(2.0, 0.0199), (float(lpv_frequency(key / 20)), 0.02)])
+            sysk = _mode_block_system([(2.0, 0.0199), (float(lpv_frequency(key / 5)), 0.02)])
             ad, bd, _, _ = discretize(sysk, FS)
             cache[key] = (ad, bd[:, 0])
         ad, bd = cache[key]
