@@ -68,3 +68,30 @@ def test_structural_changes_listed():
     old = P.defaults()
     new = {"block_rows": 30, "forgetting_factor": 0.95, "output_topic": "/imu"}
     assert sorted(P.structural_changes(old, new)) == ["block_rows", "output_topic"]
+
+
+def _shown(value: object) -> str:
+    """A default as the README table shows it."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+def test_readme_table_and_config_file_show_the_defaults():
+    """The documented defaults are the real ones (README table and config/sysid_node.yaml)."""
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    pkg = Path(__file__).resolve().parents[1]
+    rows = {
+        m.group(1): m.group(2)
+        for m in re.finditer(r"^\| `(\w+)` \| \w+ \| `([^`]*)` \|", (pkg / "README.md").read_text(),
+                             re.MULTILINE)
+    }
+    config = yaml.safe_load((pkg / "config" / "sysid_node.yaml").read_text())
+    config = config["sysid_node"]["ros__parameters"]
+    for spec in P.PARAMS:
+        assert rows.get(spec.name) == _shown(spec.default), f"README row of {spec.name}"
+        assert config.get(spec.name) == spec.default, f"config/sysid_node.yaml {spec.name}"

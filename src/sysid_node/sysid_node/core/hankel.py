@@ -9,9 +9,10 @@ DSRA work on this one layout.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numpy.lib.stride_tricks import as_strided, sliding_window_view
 
 
 def block_hankel(x: np.ndarray, first: int, last: int, j: int) -> np.ndarray:
@@ -58,17 +59,31 @@ class Layout:
         return slice(self.n_past + self.i * self.m, self.dim)
 
 
+@lru_cache(maxsize=64)
+def _window_order(i: int, m: int, l: int) -> np.ndarray:
+    """Column permutation from a window in sample-major order (sample t, channel c at
+    t (m + l) + c, channels [u; y]) to the (A1) order [u_p; y_p; u_f; y_f]."""
+    idx = np.arange(2 * i * (m + l)).reshape(2 * i, m + l)
+    return np.concatenate(
+        [idx[:i, :m].ravel(), idx[:i, m:].ravel(), idx[i:, :m].ravel(), idx[i:, m:].ravel()]
+    )
+
+
 def window_rows(u: np.ndarray, y: np.ndarray, i: int) -> np.ndarray:
     """All windows z_k of 2i samples as rows: (N - 2i + 1, 2i(m + l)), the transpose of
     ``[U_{1|i}; Y_{1|i}; U_{i+1|2i}; Y_{i+1|2i}]`` of (A1)."""
-    n = y.shape[0]
+    return window_rows_packed(np.hstack([u, y]), u.shape[1], i)
+
+
+def window_rows_packed(data: np.ndarray, m: int, i: int) -> np.ndarray:
+    """:func:`window_rows` of samples already packed as ``data = [u, y]`` (N, m + l): one
+    strided view of the windows and one gather (cheap also for a single window)."""
+    data = np.ascontiguousarray(data, dtype=float)
+    n, width = data.shape
     j = n - 2 * i + 1
     if j <= 0:
-        return np.zeros((0, 2 * i * (u.shape[1] + y.shape[1])))
-    wu = sliding_window_view(u, 2 * i, axis=0)  # (j, m, 2i)
-    wy = sliding_window_view(y, 2 * i, axis=0)
-    up = wu[:, :, :i].transpose(0, 2, 1).reshape(j, -1)
-    uf = wu[:, :, i:].transpose(0, 2, 1).reshape(j, -1)
-    yp = wy[:, :, :i].transpose(0, 2, 1).reshape(j, -1)
-    yf = wy[:, :, i:].transpose(0, 2, 1).reshape(j, -1)
-    return np.hstack([up, yp, uf, yf])
+        return np.zeros((0, 2 * i * width))
+    step = data.strides[0]
+    windows = as_strided(data, shape=(j, 2 * i * width), strides=(step, data.strides[1]),
+                         writeable=False)
+    return windows[:, _window_order(i, m, width - m)]

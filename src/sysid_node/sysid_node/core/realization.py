@@ -81,6 +81,10 @@ def project(L: np.ndarray, layout: Layout, sum_w: float, sum_w2: float) -> Proje
     op = o_full[:, :n_past]
     ev, u_svd = linalg.eigh(op @ op.T, check_finite=False)
     ev, u_svd = ev[::-1], u_svd[:, ::-1]
+    # sign convention (largest entry of each vector positive): the state basis, and so A, B,
+    # C, does not flip with rounding
+    big = u_svd[np.argmax(np.abs(u_svd), axis=0), np.arange(u_svd.shape[1])]
+    u_svd = u_svd * np.where(big < 0, -1.0, 1.0)
     s = np.sqrt(np.maximum(ev, 0.0))
     # shifted problem: Y_{i+2|2i} on [W_p^+; U_{i+2|2i}], W_p^+ = [U_{1|i+1}; Y_{1|i+1}]
     r2 = r + l
