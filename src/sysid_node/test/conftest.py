@@ -7,11 +7,8 @@ import pytest
 from sysid_node.core import SEED_EXAMPLE_SETTINGS, ModeTracker, RecursiveDSRA
 from sysid_node.core.systems import (
     PAPER_EXAMPLE_SWITCH_TIME_S,
-    add_output_noise,
-    cobra_stick_model,
+    cobra_example_data,
     paper_example_data,
-    simulate,
-    wideband_input,
 )
 
 SEED_EXAMPLE_SEEDS = range(10)
@@ -54,8 +51,4 @@ def seed_example_runs():
 @pytest.fixture(scope="session")
 def cobra_data():
     """60 s of the cobra stick model at 256 Hz, two white inputs, 5 % output noise."""
-    system = cobra_stick_model()
-    rng = np.random.default_rng(7)
-    u = wideband_input(int(60 * COBRA_FS), 2, rng)
-    y = add_output_noise(simulate(system, u, COBRA_FS), 0.05, rng)
-    return system, u, y
+    return cobra_example_data(duration_s=60.0, fs=COBRA_FS, noise_fraction=0.05, seed=7)

@@ -32,18 +32,16 @@ def _errors(modes, system):
     return np.array(out)
 
 
+def _cobra_estimator(n_inputs: int, realization_interval: int) -> RecursiveDSRA:
+    """2 outputs, i = 20, order 6 (the model's three modes), 8 s memory at 256 Hz."""
+    return RecursiveDSRA(2, n_inputs, fs=FS, block_rows=20, max_order=6,
+                         forgetting_factor=0.9995, realization_interval=realization_interval,
+                         damping_bounds=WIDE_DAMPING)
+
+
 def test_cobra_input_output_recursive(cobra_data):
     system, u, y = cobra_data
-    est = RecursiveDSRA(
-        2,
-        2,
-        fs=FS,
-        block_rows=20,
-        max_order=6,
-        forgetting_factor=0.9995,
-        realization_interval=256,
-        damping_bounds=WIDE_DAMPING,
-    )
+    est = _cobra_estimator(n_inputs=2, realization_interval=256)
     models = _feed(est, u, y)
     assert est.converged and est.realization_count == len(models)
     late = [m for m in models if m.time_s >= 30.0]
@@ -55,16 +53,7 @@ def test_cobra_input_output_recursive(cobra_data):
 
 def test_cobra_output_only_recursive(cobra_data):
     system, _, y = cobra_data
-    est = RecursiveDSRA(
-        2,
-        0,
-        fs=FS,
-        block_rows=20,
-        max_order=6,
-        forgetting_factor=0.9995,
-        realization_interval=512,
-        damping_bounds=WIDE_DAMPING,
-    )
+    est = _cobra_estimator(n_inputs=0, realization_interval=512)
     _feed(est, None, y)
     err = _errors(est.modes(), system)
     assert len(est.modes()) == 3
