@@ -309,6 +309,7 @@ class SysidNode(Node):
             "input_topic": values["input_topic"] if mode == "io" else "",
             "mode": mode,
             "sample_rate_hz": fs,
+            "identification_rate_hz": st.get("id_fs", math.nan),
             "output_rate_hz": rates.get("output", math.nan),
             "input_rate_hz": rates.get("input", math.nan),
             "forgetting_factor": st["lambda"],

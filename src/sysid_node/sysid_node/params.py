@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from sysid_node.decimation import auto_factor
+
 Kind = Literal["live", "structural", "read_only"]
 
 SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
@@ -25,6 +27,8 @@ RATE_POLICIES = ("resample", "reject")
 IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
 #: Default upper band edge as a fraction of the sample rate (0.4 fs = 80 % of Nyquist).
 NYQUIST_SAFE_FRACTION = 0.4
+#: Automatic block rows aim at this many rows of the stacked window 2 i (m + l).
+AUTO_WINDOW_ROWS = 140
 
 
 @dataclass(frozen=True)
@@ -70,9 +74,15 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("reorder_window", float, 0.02,
        "Data held back to put out-of-order samples in stamp order [s] (adds this latency)",
        "structural", lo=0.0, hi=5.0, unit="s"),
+    _p("decimation", int, 0,
+       "Identify at sample_rate / decimation after an anti-alias low-pass (inputs and outputs "
+       "alike); 0 = auto: the largest factor keeping the identification rate >= 10 x freq_max "
+       "(1 when freq_max is 0); 1 = off", "structural", lo=0, hi=100),
     # -- estimator (structural) --
-    _p("block_rows", int, 35, "Hankel block rows i of the recursive DSRA (A1) [-]",
-       "structural", lo=2, hi=200),
+    _p("block_rows", int, 0,
+       "Hankel block rows i of the recursive DSRA (A1) [-]; 0 = auto: about "
+       f"{AUTO_WINDOW_ROWS} rows in the stacked window 2 i (m + l) (35 for 1 input + 1 output, "
+       "10 for 1 + 6), enough for the model order", "structural", lo=0, hi=200),
     _p("max_order", int, 0,
        "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
        "structural", lo=0, hi=400),
@@ -160,6 +170,8 @@ def validate(name: str, value: Any) -> str:
         bad = [a for a in axes if a not in IMU_AXES]
         if not axes or bad:
             return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+    if name == "block_rows" and value == 1:
+        return "block_rows=1 is too small: use 0 (auto) or at least 2"
     if name in ("output_topic", "input_topic") and value and not value.startswith("/"):
         return f"{name}='{value}' must be an absolute topic name (start with '/')"
     return ""
@@ -182,6 +194,10 @@ def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
         return f"damping_min={dmin:g} must be below damping_max={dmax:g}"
     fs = values.get("sample_rate", 0.0) or sample_rate
     if math.isfinite(fs) and fs > 0:
+        k = int(values.get("decimation", 0))
+        if k > 1 and fmax > NYQUIST_SAFE_FRACTION * fs / k:
+            return (f"freq_max={fmax:g} Hz is above {NYQUIST_SAFE_FRACTION:g} x the "
+                    f"identification rate {fs / k:g} Hz (decimation {k})")
         if fmax > fs / 2:
             return f"freq_max={fmax:g} Hz is above the Nyquist frequency {fs / 2:g} Hz"
         if fmin >= fs / 2:
@@ -215,8 +231,28 @@ def effective_lambda(values: dict[str, Any], fs: float) -> float:
     return float(values["forgetting_factor"])
 
 
+def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int) -> int:
+    """``block_rows`` when > 0; else i with 2 i (m + l) close to AUTO_WINDOW_ROWS (the cost of
+    a realization grows with the cube of that size), at most 35 (the seed example's value) and
+    at least enough block rows for the model order (l (i - 1) >= order + 2)."""
+    i = int(values.get("block_rows", 0))
+    if i > 0:
+        return i
+    order = int(values.get("max_order", 0)) or 2 * int(values.get("max_modes", 5))
+    need = -(-(order + 2) // max(n_outputs, 1)) + 1
+    return max(need, 2, min(35, round(AUTO_WINDOW_ROWS / (2 * (n_inputs + n_outputs)))))
+
+
+def decimation_factor(values: dict[str, Any], fs: float) -> int:
+    """Decimation factor to the identification rate: ``decimation`` when > 0, else automatic
+    (:func:`sysid_node.decimation.auto_factor`)."""
+    k = int(values.get("decimation", 0))
+    return k if k > 0 else auto_factor(fs, float(values.get("freq_max", 0.0)))
+
+
 def effective_band(values: dict[str, Any], fs: float) -> tuple[float, float]:
-    """(fmin, fmax) [Hz] with ``freq_max = 0`` resolved to the safe fraction of ``fs``."""
+    """(fmin, fmax) [Hz] with ``freq_max = 0`` resolved to the safe fraction of ``fs`` (pass the
+    identification rate)."""
     fmax = float(values.get("freq_max", 0.0))
     if fmax <= 0:
         fmax = NYQUIST_SAFE_FRACTION * fs if math.isfinite(fs) and fs > 0 else math.inf

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from sysid_node import params as P
+from sysid_node.decimation import Decimator
 from sysid_node.ingest import Chunk, Ingest
 
 STATUS_NAMES = ("tentative", "tracked", "lost")
@@ -113,8 +114,8 @@ class Pipeline:
             self.values.update(values)
         self.log = log or (lambda _msg: None)
         self._core = _import_core()  # fail at start-up, not at the first sample
-        self.update_seconds = 0.0  # wall time spent in the estimator and the tracker
-        self.update_samples = 0
+        self.update_seconds = 0.0  # wall time in decimation, the estimator and the tracker
+        self.update_samples = 0  # samples of the incoming stream
         self.last_update_cost = math.nan  # [s per sample] of the latest piece
         self.records_made = 0
         self._build_ingest()
@@ -133,6 +134,7 @@ class Pipeline:
         )
         self.estimator = None
         self.tracker = None
+        self.decimator: Decimator | None = None
         self._layout: tuple[int, int] | None = None
         self._pending: list[Chunk] = []
         self._last_bucket: int | None = None
@@ -140,15 +142,18 @@ class Pipeline:
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
         RecursiveDSRA, ModeTracker = self._core
-        v, fs = self.values, self.sample_rate
+        v = self.values
+        self.decimator = Decimator(P.decimation_factor(v, self.sample_rate), self.sample_rate)
+        fs = self.identification_rate
         fmin, fmax = P.effective_band(v, fs)
-        top = n_outputs * (v["block_rows"] - 1)  # largest order the Hankel rows allow
+        self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs)
+        top = n_outputs * (self.block_rows - 1)  # largest order the Hankel rows allow
         max_order = min(v["max_order"], top) if v["max_order"] else None
         self.estimator = RecursiveDSRA(
             n_outputs,
             n_inputs=n_inputs,
             fs=fs,
-            block_rows=v["block_rows"],
+            block_rows=self.block_rows,
             max_order=max_order,
             forgetting_factor=P.effective_lambda(v, fs),
             realization_interval=self._realization_interval(),
@@ -160,9 +165,12 @@ class Pipeline:
         self._tracked: list = []
         self._layout = (n_outputs, n_inputs)
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
+        rate = f"{fs:g} Hz"
+        if self.decimator.factor > 1:
+            rate += f" (decimated by {self.decimator.factor} from {self.sample_rate:g} Hz)"
         self.log(
-            f"estimator started: {n_outputs} output(s), {kind}, {fs:g} Hz, block rows "
-            f"{v['block_rows']}, lambda {P.effective_lambda(v, fs):.5f}, band "
+            f"estimator started: {n_outputs} output(s), {kind}, {rate}, block rows "
+            f"{self.block_rows}, lambda {P.effective_lambda(v, fs):.5f}, band "
             f"{fmin:g}-{fmax:g} Hz"
         )
 
@@ -176,7 +184,7 @@ class Pipeline:
         }
 
     def _realization_interval(self) -> int:
-        return max(1, round(self.sample_rate / self.values["realization_rate"]))
+        return max(1, round(self.identification_rate / self.values["realization_rate"]))
 
     def reset(self) -> None:
         """Forget all data and the estimate (the parameters are kept)."""
@@ -189,8 +197,17 @@ class Pipeline:
         return self.ingest.fs
 
     @property
+    def identification_rate(self) -> float:
+        """Rate the estimator runs at [Hz]: the sample rate over the decimation factor (the
+        factor is fixed when the estimator is built); NaN while unknown."""
+        if self.decimator is not None:
+            return self.decimator.rate
+        return self.sample_rate / P.decimation_factor(self.values, self.sample_rate)
+
+    @property
     def forgetting_factor(self) -> float:
-        return P.effective_lambda(self.values, self.sample_rate)
+        """lambda per identification sample."""
+        return P.effective_lambda(self.values, self.identification_rate)
 
     @property
     def counters(self) -> dict[str, int]:
@@ -236,9 +253,18 @@ class Pipeline:
         elif c.new_segment:
             self._flush_pending()
             self._restart_window()
+            self.decimator.restart()
+        self.update_samples += len(c)  # cost is per sample of the incoming stream
+        if self.decimator.factor > 1:
+            t0 = time.perf_counter()
+            stamps, y, u = self.decimator.process(c.stamps_ns, c.y, c.u)
+            self.update_seconds += time.perf_counter() - t0
+            if len(stamps) == 0:
+                return []
+            c = Chunk(stamps_ns=stamps, y=y, u=u, new_segment=c.new_segment)
         # half a period of slack so that a stamp a few ns off a multiple of the publication
         # period (float seconds in a bag) still falls on the same side
-        half = round(5e8 / self.sample_rate)
+        half = round(5e8 / self.identification_rate)
         bucket = (c.stamps_ns + half) // self._bucket_ns()
         prev = bucket[0] if self._last_bucket is None else self._last_bucket
         cross = np.flatnonzero(np.diff(np.concatenate(([prev], bucket))) != 0)
@@ -290,12 +316,11 @@ class Pipeline:
         s0 = int(getattr(est, "samples_seen", self._samples))
         models = est.update(c.u, c.y) or []
         for mdl in models:
-            k = round(float(getattr(mdl, "time_s", math.nan)) * self.sample_rate) - s0 - 1
+            k = round(float(getattr(mdl, "time_s", math.nan)) * self.identification_rate) - s0 - 1
             k = min(max(k, 0), len(c) - 1) if math.isfinite(k) else len(c) - 1
             self._track(list(getattr(mdl, "modes", [])), int(c.stamps_ns[k]) * 1e-9)
         dt = time.perf_counter() - t0
         self.update_seconds += dt
-        self.update_samples += len(c)
         self.last_update_cost = dt / len(c)
         self._samples += len(c)
 
@@ -303,7 +328,7 @@ class Pipeline:
         """Spurious-mode rejection with the current (live) band, bounds and mode count, then
         the tracker."""
         v = self.values
-        fmin, fmax = P.effective_band(v, self.sample_rate)
+        fmin, fmax = P.effective_band(v, self.identification_rate)
         modes = [
             m for m in modes
             if fmin <= m.frequency_hz <= fmax
@@ -313,7 +338,7 @@ class Pipeline:
         self._tracked = self.tracker.update(modes, t)
 
     def _record(self, stamp_ns: int) -> EstimateRecord:
-        est, v = self.estimator, self.values
+        est = self.estimator
         t = stamp_ns * 1e-9
         out = [self._mode_record(tm, t) for tm in self._tracked]
         out.sort(key=lambda m: m.frequency_hz)
@@ -324,9 +349,9 @@ class Pipeline:
             stamp_ns=stamp_ns,
             modes=out,
             model_order=_model_order(est),
-            block_rows=int(v["block_rows"]),
+            block_rows=int(self.block_rows),
             forgetting_factor=self.forgetting_factor,
-            sample_rate=self.sample_rate,
+            sample_rate=self.identification_rate,
             prediction_error_rms_per_channel=pe,
             converged=bool(_get(est, "converged", default=False)),
             samples_used=int(_get(est, "samples_seen", default=self._samples)),
@@ -369,6 +394,8 @@ class Pipeline:
         if reason:
             return reason
         structural = P.structural_changes(self.values, changes)
+        if self.decimator is not None and P.decimation_factor(new, fs) != self.decimator.factor:
+            structural.append("decimation factor")  # e.g. auto decimation and a new freq_max
         self.values = new
         if structural:
             self.log(f"structural parameter(s) changed ({', '.join(sorted(structural))}): "
@@ -381,7 +408,7 @@ class Pipeline:
         return ""
 
     def _apply_live(self, changes: dict[str, Any]) -> None:
-        est, v, fs = self.estimator, self.values, self.sample_rate
+        est, v, fs = self.estimator, self.values, self.identification_rate
         if any(k.startswith("tracking_") for k in changes) and self.tracker is not None:
             for names, key in (
                 (("frequency_gate", "frequency_tolerance"), "tracking_frequency_tolerance"),
@@ -416,6 +443,7 @@ def worker_status(pl: Pipeline) -> dict[str, Any]:
         "counters": pl.counters,
         "rates": pl.ingest.rates(),
         "fs": pl.sample_rate,
+        "id_fs": pl.identification_rate,
         "mode": pl.ingest.mode,
         "cost": cost,
         "lambda": pl.forgetting_factor,

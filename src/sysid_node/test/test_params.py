@@ -25,7 +25,8 @@ def test_every_parameter_has_description_type_and_valid_default():
         ("forgetting_factor", 1.5, "above the maximum"),
         ("forgetting_factor", 0.5, "below the minimum"),
         ("forgetting_factor", math.nan, "finite"),
-        ("block_rows", 1, "below the minimum"),
+        ("block_rows", 1, "too small"),
+        ("block_rows", -1, "below the minimum"),
         ("block_rows", 2.5, "type int"),
         ("output_type", "PointCloud2", "not one of"),
         ("qos", "fast", "not one of"),
@@ -95,3 +96,13 @@ def test_readme_table_and_config_file_show_the_defaults():
     for spec in P.PARAMS:
         assert rows.get(spec.name) == _shown(spec.default), f"README row of {spec.name}"
         assert config.get(spec.name) == spec.default, f"config/sysid_node.yaml {spec.name}"
+
+
+@pytest.mark.parametrize(
+    ("outputs", "inputs", "extra", "rows"),
+    [(1, 1, {}, 35), (1, 0, {}, 35), (6, 1, {}, 10), (2, 2, {}, 18), (6, 0, {}, 12),
+     (1, 1, {"block_rows": 20}, 20), (6, 1, {"max_order": 80}, 15)],
+)
+def test_auto_block_rows_bound_the_window_and_fit_the_order(outputs, inputs, extra, rows):
+    values = {**P.defaults(), **extra}
+    assert P.effective_block_rows(values, outputs, inputs) == rows
