@@ -115,13 +115,15 @@ class Client:
         self.rclpy.try_shutdown(context=self.ctx)
 
 
-def run_level(kind: str, fs: float, seconds: float, lag: float) -> dict:
+def run_level(kind: str, fs: float, seconds: float, lag: float, extra: list[str]) -> dict:
     from sysid_node import msg_convert as mc
 
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     args = [str(RUN), "sysid_node", "sysid_node", "--ros-args", "-p", f"output_type:={kind}",
             "-p", f"input_type:={kind}", "-p", f"sample_rate:={fs}",
             "-p", f"qos_depth:={max(200, int(fs))}"]
+    for item in extra:
+        args += ["-p", item]
     node = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             env=env, start_new_session=True)
     client = Client(kind)
@@ -190,10 +192,13 @@ def main() -> int:
                     help="sample rates to try [Hz]")
     ap.add_argument("--kinds", nargs="+", default=["SignalSample", "SignalBlock"])
     ap.add_argument("--lag", type=float, default=3.0, help="allowed catch-up after the end [s]")
+    ap.add_argument("--set", nargs="*", default=[], metavar="NAME:=VALUE",
+                    help="more node parameters, e.g. freq_max:=40.0 (default: none)")
     args = ap.parse_args()
     os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 80))
     print(f"sysid_node throughput, 1 input + 6 outputs, {args.seconds:g} s per level, "
-          f"{os.cpu_count()} CPUs, ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}")
+          f"{os.cpu_count()} CPUs, ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, parameters: "
+          f"{' '.join(args.set) or 'defaults'}")
     head = (f"{'type':<13}{'rate Hz':>8}{'sent':>7}{'recv':>7}{'send Hz':>9}{'pace':>6}"
             f"{'CPU %':>7}{'us/smp':>8}{'lat med s':>10}{'lat p95 s':>10}  sustained")
     print(head)
@@ -201,7 +206,7 @@ def main() -> int:
     best: dict[str, float] = {}
     for kind in args.kinds:
         for fs in args.rates:
-            r = run_level(kind, fs, args.seconds, args.lag)
+            r = run_level(kind, fs, args.seconds, args.lag, args.set)
             if "error" in r:
                 print(f"{kind:<13}{fs:>8g}  {r['error']}")
                 continue
