@@ -97,6 +97,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("damping_max", float, _D.damping_max,
        "Modes with a larger damping ratio get no notch (well damped or spurious) [-]",
        lo=0.0, hi=1.0),
+    _p("min_relative_amplitude", float, _D.min_relative_amplitude,
+       "Modes whose amplitude is below this fraction of the largest notchable mode's get no "
+       "notch (they hardly reach the feedback signal; often noise modes) [-]; 0 = all",
+       lo=0.0, hi=1.0),
     _p("bandwidth_min", float, _D.bandwidth_min, "Narrowest adaptive notch (-3 dB) [Hz]",
        lo=0.001, hi=10000.0, unit="Hz"),
     _p("bandwidth_max", float, _D.bandwidth_max,

@@ -4,9 +4,12 @@ Input is plain data (:class:`ModeInput`, :class:`EstimateInput`), output the sec
 the bank (:class:`~notch_filter_node.sections.SectionParams`) and a status per notch.
 
 - A mode gets a notch only once its status is ``tracked``, its frequency lies in
-  ``[freq_min, freq_max]`` and its damping is at most ``damping_max``; the new notch starts at
-  the estimate and fades its depth in. When there are more such modes than sections, the modes
-  that already have a notch keep it and the largest (``amplitude``) of the others come next.
+  ``[freq_min, freq_max]``, its damping is at most ``damping_max`` and its amplitude is at least
+  ``min_relative_amplitude`` times the largest such mode's (a mode that small hardly reaches the
+  feedback signal, and is often a noise mode with a wide uncertainty); the new notch starts at
+  the estimate with its budget-limited bandwidth and fades its depth in. When there are more
+  such modes than sections, the modes that already have a notch keep it and the largest
+  (``amplitude``) of the others come next.
 - The centre follows the estimate at most at ``slew_rate`` [Hz/s], and only when the estimate has
   moved by more than the hysteresis ``max(hysteresis, hysteresis_sigma * sigma_f)``.
 - Bandwidth: the narrowest notch that keeps ``min_attenuation`` over the uncertainty interval
@@ -77,6 +80,7 @@ class PolicyConfig:
     sigma_k: float = 3.0  # [-] uncertainty interval half-width in frequency stds
     damping_gain: float = 1.0  # [-] bandwidth >= damping_gain * 2 zeta f
     damping_max: float = 0.15  # [-] better damped modes get no notch
+    min_relative_amplitude: float = 0.05  # [-] of the largest usable mode's amplitude
     bandwidth_min: float = 0.05  # [Hz]
     bandwidth_max: float = 5.0  # [Hz]
     phase_lag_budget: float = 10.0  # [deg] total of the adaptive notches at the crossover
@@ -240,12 +244,18 @@ class RetuningPolicy:
             if (m.status == "tracked" and math.isfinite(f) and c.freq_min <= f <= self.fmax
                     and not (math.isfinite(z) and z > c.damping_max)):
                 usable[int(m.id)] = m
+        amps = [m.amplitude for m in usable.values() if math.isfinite(m.amplitude)]
+        if amps and c.min_relative_amplitude > 0:
+            floor = c.min_relative_amplitude * max(amps)
+            usable = {k: m for k, m in usable.items()
+                      if not (math.isfinite(m.amplitude) and m.amplitude < floor)}
         # modes that already have a notch first, then the largest (unknown amplitude last)
         held = {s.mode_id for s in adaptive if s.state != DISABLED or s.depth > 0}
         usable = dict(sorted(usable.items(), key=lambda kv: (
             kv[0] not in held,
             -(kv[1].amplitude if math.isfinite(kv[1].amplitude) else -math.inf))))
         by_id = {s.mode_id: s for s in adaptive if s.state != DISABLED or s.depth > 0}
+        new: list[Slot] = []
         for mid, m in usable.items():
             slot = by_id.get(mid)
             if slot is None:
@@ -257,6 +267,7 @@ class RetuningPolicy:
                 slot.shape_depth = c.depth
                 bw = self._uncertainty_bandwidth(m)
                 slot.bandwidth = slot.target_bandwidth = slot.desired_bandwidth = bw
+                new.append(slot)
                 self.revision += 1
             if slot.state != TRACKING:
                 slot.state = TRACKING
@@ -276,6 +287,8 @@ class RetuningPolicy:
             if slot.state == TRACKING and slot.mode_id not in usable:
                 self._hold(slot, est.stamp)
         self._apply_budget()
+        for slot in new:  # depth 0 yet: start at the budget-limited width, no sweep down
+            slot.bandwidth = slot.target_bandwidth
 
     def _hold(self, slot: Slot, t: float) -> None:
         slot.state = HOLDING

@@ -91,6 +91,29 @@ def test_phase_lag_budget_narrows_the_notches():
     assert all(s.target_bandwidth < s.desired_bandwidth for s in t)
 
 
+def test_new_notch_starts_within_the_budget():
+    """An uncertain first estimate wants a wide notch: it starts at the budget-limited width
+    (its depth is still 0), not at the wide one narrowed later at the slew rate."""
+    cfg = PolicyConfig(phase_lag_budget=2.0, fallback_depth=0.0)
+    pol = P.RetuningPolicy(cfg, FS)
+    pol.set_estimate(est(0.0, 3.0, std=0.2))
+    (slot,) = [s for s in pol.slots[:-1] if s.state == P.TRACKING]
+    assert slot.bandwidth == slot.target_bandwidth < slot.desired_bandwidth
+    pol.advance(1.5, 1.5)  # faded in
+    assert S.phase_lag_deg(S.notch_sos(3.0, slot.bandwidth, cfg.depth, FS), 0.5, FS) <= 2.0 + 1e-6
+
+
+@pytest.mark.parametrize(("floor", "notched"), [(0.05, [1]), (0.0, [1, 2])])
+def test_small_modes_get_no_notch(floor, notched):
+    cfg = PolicyConfig(min_relative_amplitude=floor, fallback_depth=0.0)
+    pol = P.RetuningPolicy(cfg, FS)
+    modes = [ModeInput(1, "tracked", 3.0, 0.005, 0.02, 0.002, amplitude=1.0),
+             ModeInput(2, "tracked", 7.4, 0.3, 0.05, 0.01, amplitude=0.01)]  # 1 %: noise mode
+    pol.set_estimate(EstimateInput(0.0, True, modes))
+    pol.advance(0.5, 0.5)
+    assert sorted(n.mode_id for n in pol.status().notches) == notched
+
+
 @pytest.mark.parametrize("block", [1, 10, 64])
 def test_retuning_under_a_sine_gives_no_transient(runner, block):
     """A sine at the mode frequency passes while the notch retunes 2.9 <-> 3.0 Hz: the output
