@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sysid_node.pipeline import EstimateRecord, ModeRecord
+from sysid_node.pipeline import EstimateRecord, ModeRecord, SpectrumRecord
 
 STATUS_CODES = {"tentative": 0, "tracked": 1, "lost": 2}
 IMU_FIELDS = {
@@ -181,6 +181,20 @@ def estimate_fields(r: EstimateRecord) -> dict[str, Any]:
         converged=bool(r.converged),
         samples_used=int(r.samples_used),
     )
+
+
+def residual_spectrum_msg(r: SpectrumRecord, frame_id: str = ""):
+    """rclpy ``sysid_msgs/ResidualSpectrum`` from a pipeline spectrum record."""
+    from sysid_msgs.msg import ResidualSpectrum
+
+    msg = ResidualSpectrum()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = split_ns(r.stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.channel_name = r.channel_name
+    msg.frequency = _f64(r.frequency)
+    msg.magnitude = _f64(r.magnitude)
+    msg.noise_floor = _f64(r.noise_floor)
+    return msg
 
 
 def estimate_msg(r: EstimateRecord, frame_id: str = ""):

@@ -48,6 +48,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
+from sysid_msgs.msg import ResidualSpectrum
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
 from sysid_node.pipeline import EstimateRecord, worker_main
@@ -143,6 +144,8 @@ class SysidNode(Node):
             mc_estimate_type(), "/modal_estimate", ESTIMATE_QOS
         )
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.spectrum_pub = self.create_publisher(
+            ResidualSpectrum, "/residual_spectrum", 10)
         self._subs: list = []
         self._subscribe(values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -274,7 +277,7 @@ class SysidNode(Node):
         """Publish the worker's estimates, log its lines, keep its status."""
         while not self._stop.is_set():
             try:
-                records, lines, status, n_msgs = self._outbox.get(timeout=0.2)
+                records, lines, status, n_msgs, spectra = self._outbox.get(timeout=0.2)
             except queue.Empty:
                 continue
             except (EOFError, OSError, ValueError):
@@ -288,6 +291,8 @@ class SysidNode(Node):
                     self.get_logger().info(line)
             for r in records:
                 self._publish(r)
+            for sp in spectra:
+                self.spectrum_pub.publish(mc.residual_spectrum_msg(sp))
 
     def _publish(self, r: EstimateRecord) -> None:
         self.estimate_pub.publish(mc.estimate_msg(r))

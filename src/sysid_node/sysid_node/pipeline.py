@@ -24,6 +24,7 @@ import numpy as np
 from sysid_node import params as P
 from sysid_node.decimation import Decimator
 from sysid_node.ingest import Chunk, Ingest
+from sysid_node.validation.residuals import residual_spectrum
 
 STATUS_NAMES = ("tentative", "tracked", "lost")
 
@@ -41,6 +42,18 @@ class ModeRecord:
     amplitude: float
     age_s: float
     shape: np.ndarray
+
+
+@dataclass
+class SpectrumRecord:
+    """Amplitude spectral density of the one-step prediction residual of one output channel
+    (sysid_msgs/ResidualSpectrum), and the level a white residual would have."""
+
+    stamp_ns: int
+    channel_name: str
+    frequency: np.ndarray  # [Hz]
+    magnitude: np.ndarray  # [output unit / sqrt(Hz)]
+    noise_floor: np.ndarray  # [output unit / sqrt(Hz)]
 
 
 @dataclass
@@ -138,6 +151,9 @@ class Pipeline:
         self._layout: tuple[int, int] | None = None
         self._pending: list[Chunk] = []
         self._last_bucket: int | None = None
+        self.spectra: list[SpectrumRecord] = []
+        self._next_spectrum_ns: int | None = None
+        self._recent = _Recent(0)
         self._samples = 0
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
@@ -162,6 +178,7 @@ class Pipeline:
             max_modes=v["max_modes"],
         )
         self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
+        self._recent = _Recent(int(RESIDUAL_WINDOW_S * fs) if np.isfinite(fs) else 0)
         self._tracked: list = []
         self._layout = (n_outputs, n_inputs)
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
@@ -300,6 +317,7 @@ class Pipeline:
 
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
+        self._recent.clear()
         est = self.estimator
         if hasattr(est, "restart_window"):
             est.restart_window()
@@ -313,6 +331,7 @@ class Pipeline:
         the stamp of the sample it was realized after."""
         est = self.estimator
         t0 = time.perf_counter()
+        self._recent.add(c.y, c.u)
         s0 = int(getattr(est, "samples_seen", self._samples))
         models = est.update(c.u, c.y) or []
         for mdl in models:
@@ -337,7 +356,41 @@ class Pipeline:
         modes = sorted(modes, key=lambda m: -_finite(m.amplitude))[: v["max_modes"]]
         self._tracked = self.tracker.update(modes, t)
 
+    def pop_spectra(self) -> list[SpectrumRecord]:
+        """Residual spectra made since the last call (at most ``residual_spectrum_rate`` per
+        second of data, at estimate instants)."""
+        out, self.spectra = self.spectra, []
+        return out
+
+    def _spectrum(self, stamp_ns: int) -> None:
+        """Residual of the current model on the recent data: the one-step Kalman predictor of
+        the latest realization (A, B, C, D, K) run over the last RESIDUAL_WINDOW_S seconds
+        (its first block-rows samples dropped as the predictor's start-up), then the same Welch
+        spectrum and white noise floor as ``validate`` (validation/residuals.py)."""
+        rate = self.values["residual_spectrum_rate"]
+        model = getattr(self.estimator, "model", None)
+        if rate <= 0 or model is None or not hasattr(model, "predict"):
+            return
+        if self._next_spectrum_ns is not None and stamp_ns < self._next_spectrum_ns:
+            return
+        y, u = self._recent.arrays()
+        skip = self.block_rows
+        if y.shape[0] - skip < SPECTRUM_MIN_SAMPLES:
+            return
+        try:
+            e = (y - model.predict(y, u))[skip:]
+        except (ValueError, np.linalg.LinAlgError):
+            return
+        if not np.all(np.isfinite(e)):
+            return
+        self._next_spectrum_ns = stamp_ns + round(1e9 / rate)
+        sp = residual_spectrum(e, self.identification_rate)
+        for k in range(e.shape[1]):
+            self.spectra.append(SpectrumRecord(
+                stamp_ns, f"y{k}", sp.f, np.sqrt(sp.psd[:, k]), np.sqrt(sp.floor[:, k])))
+
     def _record(self, stamp_ns: int) -> EstimateRecord:
+        self._spectrum(stamp_ns)
         est = self.estimator
         t = stamp_ns * 1e-9
         out = [self._mode_record(tm, t) for tm in self._tracked]
@@ -437,6 +490,42 @@ class Pipeline:
                 est.realization_interval = self._realization_interval()
 
 
+#: Residual samples needed before a spectrum is made (a few Welch segments).
+SPECTRUM_MIN_SAMPLES = 256
+#: Recent data the residual spectrum is computed over [s].
+RESIDUAL_WINDOW_S = 20.0
+
+
+class _Recent:
+    """The last ``n`` samples (y, u) fed to the estimator, for the residual spectrum."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.clear()
+
+    def clear(self) -> None:
+        self._y: list[np.ndarray] = []
+        self._u: list[np.ndarray | None] = []
+        self._count = 0
+
+    def add(self, y: np.ndarray, u: np.ndarray | None) -> None:
+        if self.n <= 0:
+            return
+        self._y.append(y)
+        self._u.append(u)
+        self._count += y.shape[0]
+        if self._count > 2 * self.n:  # compact now and then
+            yy, uu = self.arrays()
+            self._y, self._u, self._count = [yy], [uu], yy.shape[0]
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray | None]:
+        if not self._y:
+            return np.zeros((0, 0)), None
+        y = np.concatenate(self._y)[-self.n :]
+        u = None if self._u[0] is None else np.concatenate(self._u)[-self.n :]
+        return y, u
+
+
 def worker_status(pl: Pipeline) -> dict[str, Any]:
     cost = pl.update_seconds / pl.update_samples if pl.update_samples else math.nan
     return {
@@ -507,7 +596,7 @@ def worker_main(values: dict[str, Any], inbox, outbox) -> None:
             except Exception as err:  # keep running on anything the data throws at us
                 lines.append(f"ERROR processing failed, estimator reset: {err!r}")
                 pl.reset()
-        outbox.put((records, lines[:], worker_status(pl), n_msgs))
+        outbox.put((records, lines[:], worker_status(pl), n_msgs, pl.pop_spectra()))
         lines.clear()
 
 

@@ -192,3 +192,33 @@ def test_estimate_round_trip_through_cdr():
     np.testing.assert_allclose(np.abs(m.shape), [0.5, 1.0])  # normalised to max 1
     np.testing.assert_allclose(np.angle(m.shape[0]), 0.3 - np.pi)  # relative to the largest
     assert np.isnan(back.prediction_error_rms_per_channel[1])
+
+
+@pytest.mark.parametrize("order", [0, 2])
+def test_residual_spectrum_shows_what_the_model_misses(paper, order):
+    """/residual_spectrum: the current model's one-step residual over the recent data. The full
+    model leaves it near its white floor before the 6 Hz mode appears; a one-mode model
+    (order 2, it takes the 2 Hz mode) leaves the 4 Hz mode as a peak far above the floor."""
+    stamps, u, y = paper
+    pl = Pipeline({"residual_spectrum_rate": 1.0, "max_order": order})
+    spectra = []
+    for a in range(0, 2000, 10):  # before the 6 Hz mode appears at 20 s
+        pl.push_output(stamps[a : a + 10], y[a : a + 10])
+        pl.push_input(stamps[a : a + 10], u[a : a + 10])
+        pl.step()
+        spectra += pl.pop_spectra()
+    times = np.array([_t(s) for s in spectra])
+    assert len(spectra) >= 14 and np.all(np.diff(times) >= 1.0 - 1e-6)
+    last = spectra[-1]
+    assert last.channel_name == "y0" and last.frequency[-1] == pytest.approx(FS / 2)
+    assert np.all(np.isfinite(last.magnitude)) and np.all(last.noise_floor > 0)
+    for s in spectra:
+        if _t(s) < 10.0:
+            continue
+        ratio = s.magnitude / s.noise_floor
+        peak = s.frequency[int(np.argmax(ratio))]
+        if order == 2:
+            assert ratio.max() >= 10.0 and abs(peak / 4.0 - 1) < 0.02, (_t(s), peak)
+        else:
+            assert ratio.max() <= 8.0, (_t(s), peak)
+    assert Pipeline({"residual_spectrum_rate": 0.0}).pop_spectra() == []

@@ -161,12 +161,15 @@ def kalman_gain(
     """Steady-state Kalman gain K and innovation covariance for the innovation form
     x+ = A x + B u + K e, y = C x + D u + e; falls back to K = S R^{-1} (the residual
     regression: the (A3) states are Kalman states, so their residuals are K e) when the Riccati
-    equation has no stabilising solution or ``riccati`` is False."""
+    equation has no stabilising solution, or when ``riccati`` is False and that cheaper gain
+    already gives a stable predictor (A - K C); otherwise the Riccati gain is used."""
     n, l = a.shape[0], c.shape[0]
     r_reg = r + 1e-12 * max(np.trace(r) / max(l, 1), 1e-300) * np.eye(l)
+    if not riccati:
+        k = linalg.solve(r_reg, s.T, assume_a="pos").T
+        if np.all(np.isfinite(k)) and np.max(np.abs(np.linalg.eigvals(a - k @ c))) < 1.0:
+            return k, r_reg
     try:
-        if not riccati:
-            raise ValueError("residual gain requested")
         with np.errstate(all="ignore"):
             p = linalg.solve_discrete_are(a.T, c.T, q + 1e-12 * np.eye(n), r_reg, s=s)
         re = c @ p @ c.T + r_reg

@@ -182,7 +182,9 @@ def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
         push = pipeline.push_output if stream == "output" else pipeline.push_input
         for t, v in mc.stack_blocks(blocks):
             push(t, v)
-    return pipeline.step()
+    records = pipeline.step()
+    pipeline.pop_spectra()  # /residual_spectrum is a live view; the offline outputs omit it
+    return records
 
 
 CSV_FIELDS = [
