@@ -162,6 +162,7 @@ class RecursiveDSRA:
         self._pending: list[np.ndarray] = []
         self._su = self._fixed_su
         self._sy = self._fixed_sy
+        self._scale: np.ndarray | None = None  # [su, sy] once both are known
         self._since_realization = 0
         self._theta1: np.ndarray | None = None
         self._pe_ms = np.full(self.n_outputs, np.nan)
@@ -261,9 +262,9 @@ class RecursiveDSRA:
     def _flush(self) -> list[IdentifiedModel]:
         data = self._queue[0] if len(self._queue) == 1 else np.vstack(self._queue)
         self._queue, self._queued = [], 0
-        ok = finite_rows(data)
         out: list[IdentifiedModel] = []
-        if ok.all():
+        ok = None if np.isfinite(data).all() else finite_rows(data)
+        if ok is None:
             self._absorb(data, out)
             return out
         bad = np.flatnonzero(~ok)
@@ -293,8 +294,9 @@ class RecursiveDSRA:
             m = self.n_inputs
             self._su = std[:m] if self._su is None else self._su
             self._sy = std[m:] if self._sy is None else self._sy
-        scale = np.concatenate([self._su, self._sy])
-        data = data / scale
+        if self._scale is None:
+            self._scale = np.concatenate([self._su, self._sy])
+        data = data / self._scale
         # split so that realizations happen every realization_interval samples
         pos = 0
         while pos < data.shape[0]:
