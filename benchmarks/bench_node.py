@@ -59,28 +59,20 @@ def _stop(proc: subprocess.Popen) -> None:
             pass
 
 
-class Client:
-    def __init__(self, kind: str) -> None:
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.executors import SingleThreadedExecutor
-        from sysid_node.node import ESTIMATE_QOS
+class DdsClient:
+    """A node of its own context, spun by a daemon thread (the benchmarks' side of DDS)."""
 
-        from sysid_msgs.msg import ModalEstimate, SignalBlock, SignalSample
+    def __init__(self, name: str) -> None:
+        import rclpy
 
         self.rclpy = rclpy
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node("bench_node_client", context=self.ctx)
-        cls = SignalSample if kind == "SignalSample" else SignalBlock
-        self.pub_y = self.node.create_publisher(cls, "/vibration", 1000)
-        self.pub_u = self.node.create_publisher(cls, "/excitation", 1000)
-        self.latency: list[float] = []
-        self.last_stamp = 0
-        self.diag: dict[str, str] = {}
-        self.node.create_subscription(ModalEstimate, "/modal_estimate", self._on_est,
-                                      ESTIMATE_QOS)
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+        self.node = rclpy.create_node(name, context=self.ctx)
+
+    def start(self) -> None:
+        from rclpy.executors import SingleThreadedExecutor
+
         self.ex = SingleThreadedExecutor(context=self.ctx)
         self.ex.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -91,6 +83,31 @@ class Client:
             self.ex.spin()
         except Exception:
             pass
+
+    def close(self) -> None:
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.ctx)
+
+
+class Client(DdsClient):
+    def __init__(self, kind: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from sysid_node.node import ESTIMATE_QOS
+
+        from sysid_msgs.msg import ModalEstimate, SignalBlock, SignalSample
+
+        super().__init__("bench_node_client")
+        cls = SignalSample if kind == "SignalSample" else SignalBlock
+        self.pub_y = self.node.create_publisher(cls, "/vibration", 1000)
+        self.pub_u = self.node.create_publisher(cls, "/excitation", 1000)
+        self.latency: list[float] = []
+        self.last_stamp = 0
+        self.diag: dict[str, str] = {}
+        self.node.create_subscription(ModalEstimate, "/modal_estimate", self._on_est,
+                                      ESTIMATE_QOS)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
+        self.start()
 
     def _on_est(self, msg) -> None:
         now = time.time_ns()
@@ -108,11 +125,6 @@ class Client:
                 return True
             time.sleep(0.05)
         return False
-
-    def close(self) -> None:
-        self.ex.shutdown()
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.ctx)
 
 
 def run_level(kind: str, fs: float, seconds: float, lag: float, extra: list[str]) -> dict:

@@ -25,24 +25,19 @@ import threading
 import time
 
 import numpy as np
-from bench_node import RUN, _group_cpu_s, _stop
+from bench_node import RUN, DdsClient, _group_cpu_s, _stop
 
 CHANNELS = 6
 MODES_HZ = (3.0, 6.0, 9.0, 12.0, 15.0)
 
 
-class Client:
+class Client(DdsClient):
     def __init__(self, kind: str) -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
         from sysid_node.node import ESTIMATE_QOS
 
         from sysid_msgs.msg import ModalEstimate, SignalBlock, SignalSample
 
-        self.rclpy = rclpy
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node("bench_notch_client", context=self.ctx)
+        super().__init__("bench_notch_client")
         cls = SignalSample if kind == "SignalSample" else SignalBlock
         self.pub = self.node.create_publisher(cls, "/vibration", 1000)
         self.pub_est = self.node.create_publisher(ModalEstimate, "/modal_estimate", ESTIMATE_QOS)
@@ -51,16 +46,7 @@ class Client:
         self.received = 0
         self.lock = threading.Lock()
         self.node.create_subscription(cls, "/vibration_filtered", self._on_out, 1000)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.ex.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self) -> None:
-        try:
-            self.ex.spin()
-        except Exception:
-            pass
+        self.start()
 
     def _on_out(self, msg) -> None:
         now = time.perf_counter_ns()
@@ -83,11 +69,6 @@ class Client:
                 return True
             time.sleep(0.05)
         return False
-
-    def close(self) -> None:
-        self.ex.shutdown()
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.ctx)
 
 
 def estimate(stamp_ns: int):
