@@ -336,10 +336,15 @@ class NotchFilterNode(Node):
             m.mode_id, m.state = int(n.mode_id), int(n.state)
             m.center_frequency, m.bandwidth, m.depth = (float(n.center), float(n.bandwidth),
                                                         float(n.depth))
+            m.peak_reduction = math.nan  # not computed yet
             notches.append(m)
         msg.notches = notches
         msg.fallback_active = bool(st.fallback_active)
         msg.estimate_age = float(st.estimate_age)
+        msg.bank_state = NotchBank.BANK_FALLBACK if st.fallback_active else NotchBank.BANK_TRACKING
+        msg.reason = "no usable estimate" if st.fallback_active else ""
+        msg.crossover_frequency = float(self.filter.policy.config.crossover_frequency)
+        msg.phase_lag = math.nan  # not computed yet
         return msg
 
     def _maybe_publish_bank(self) -> None:

@@ -180,6 +180,11 @@ def estimate_fields(r: EstimateRecord) -> dict[str, Any]:
         ).reshape(-1),
         converged=bool(r.converged),
         samples_used=int(r.samples_used),
+        health=int(r.health),
+        health_reason=str(r.health_reason),
+        band_min=float(r.band_min_hz),
+        band_max=float(r.band_max_hz),
+        scheduling_value=float(r.scheduling_value),
     )
 
 
@@ -206,13 +211,14 @@ def estimate_msg(r: EstimateRecord, frame_id: str = ""):
     msg.header.frame_id = frame_id
     for k, v in estimate_fields(r).items():
         setattr(msg, k, _f64(v) if isinstance(v, np.ndarray) else v)
-    modes = []
-    for m in r.modes:
-        mm = Mode()
-        for k, v in mode_fields(m).items():
-            setattr(mm, k, _f64(v) if isinstance(v, np.ndarray) else v)
-        modes.append(mm)
-    msg.modes = modes
+    for key in ("modes", "predicted_modes"):
+        modes = []
+        for m in getattr(r, key):
+            mm = Mode()
+            for k, v in mode_fields(m).items():
+                setattr(mm, k, _f64(v) if isinstance(v, np.ndarray) else v)
+            modes.append(mm)
+        setattr(msg, key, modes)
     return msg
 
 
@@ -225,33 +231,16 @@ def estimate_rosbags(r: EstimateRecord, typestore: Any, frame_id: str = ""):
     return Est(
         header=Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame_id),
         modes=[Mode(**mode_fields(m)) for m in r.modes],
+        predicted_modes=[Mode(**mode_fields(m)) for m in r.predicted_modes],
         **estimate_fields(r),
     )
 
 
 def estimate_from_msg(msg: Any) -> EstimateRecord:
     """``sysid_msgs/ModalEstimate`` (rclpy or rosbags) -> :class:`EstimateRecord`."""
-    names = {v: k for k, v in STATUS_CODES.items()}
-    modes = []
-    for m in msg.modes:
-        mag = np.asarray(m.shape_magnitude, dtype=float)
-        ph = np.asarray(m.shape_phase, dtype=float)
-        modes.append(
-            ModeRecord(
-                id=int(m.id),
-                status=names.get(int(m.status), "tentative"),
-                frequency_hz=float(m.frequency),
-                frequency_std_hz=float(m.frequency_std),
-                damping_ratio=float(m.damping_ratio),
-                damping_std=float(m.damping_ratio_std),
-                amplitude=float(m.amplitude),
-                age_s=float(m.age),
-                shape=mag * np.exp(1j * ph),
-            )
-        )
     return EstimateRecord(
         stamp_ns=stamp_ns(msg.header),
-        modes=modes,
+        modes=[mode_from_msg(m) for m in msg.modes],
         model_order=int(msg.model_order),
         block_rows=int(msg.block_rows),
         forgetting_factor=float(msg.forgetting_factor),
@@ -261,4 +250,28 @@ def estimate_from_msg(msg: Any) -> EstimateRecord:
         ),
         converged=bool(msg.converged),
         samples_used=int(msg.samples_used),
+        health=int(msg.health),
+        health_reason=str(msg.health_reason),
+        band_min_hz=float(msg.band_min),
+        band_max_hz=float(msg.band_max),
+        scheduling_value=float(msg.scheduling_value),
+        predicted_modes=[mode_from_msg(m) for m in msg.predicted_modes],
+    )
+
+
+def mode_from_msg(m: Any) -> ModeRecord:
+    """``sysid_msgs/Mode`` (rclpy or rosbags) -> :class:`ModeRecord`."""
+    names = {v: k for k, v in STATUS_CODES.items()}
+    mag = np.asarray(m.shape_magnitude, dtype=float)
+    ph = np.asarray(m.shape_phase, dtype=float)
+    return ModeRecord(
+        id=int(m.id),
+        status=names.get(int(m.status), "tentative"),
+        frequency_hz=float(m.frequency),
+        frequency_std_hz=float(m.frequency_std),
+        damping_ratio=float(m.damping_ratio),
+        damping_std=float(m.damping_ratio_std),
+        amplitude=float(m.amplitude),
+        age_s=float(m.age),
+        shape=mag * np.exp(1j * ph),
     )

@@ -70,6 +70,12 @@ class EstimateRecord:
     converged: bool
     samples_used: int
     counters: dict[str, int] = field(default_factory=dict)
+    health: int = 0  # sysid_msgs/ModalEstimate HEALTH_*: 0 ok, 1 degraded, 2 fault
+    health_reason: str = ""
+    band_min_hz: float = math.nan
+    band_max_hz: float = math.nan
+    scheduling_value: float = math.nan
+    predicted_modes: list[ModeRecord] = field(default_factory=list)
 
     @property
     def prediction_error_rms(self) -> float:
@@ -85,12 +91,13 @@ class EstimateRecord:
         d["prediction_error_rms_per_channel"] = [
             float(x) for x in self.prediction_error_rms_per_channel
         ]
-        d["modes"] = []
-        for m in self.modes:
-            md = {k: v for k, v in asdict(m).items() if k != "shape"}
-            md["shape_magnitude"] = [float(x) for x in np.abs(m.shape)]
-            md["shape_phase"] = [float(x) for x in np.angle(m.shape)]
-            d["modes"].append(md)
+        for key in ("modes", "predicted_modes"):
+            d[key] = []
+            for m in getattr(self, key):
+                md = {k: v for k, v in asdict(m).items() if k != "shape"}
+                md["shape_magnitude"] = [float(x) for x in np.abs(m.shape)]
+                md["shape_phase"] = [float(x) for x in np.angle(m.shape)]
+                d[key].append(md)
         return d
 
 
@@ -398,6 +405,7 @@ class Pipeline:
         pe = np.asarray(_get(est, "prediction_error_rms", default=np.full(self._layout[0], np.nan)),
                         dtype=float).reshape(-1)
         self.records_made += 1
+        band = P.effective_band(self.values, self.identification_rate)
         return EstimateRecord(
             stamp_ns=stamp_ns,
             modes=out,
@@ -409,6 +417,8 @@ class Pipeline:
             converged=bool(_get(est, "converged", default=False)),
             samples_used=int(_get(est, "samples_seen", default=self._samples)),
             counters=self.counters,
+            band_min_hz=band[0],
+            band_max_hz=band[1],
         )
 
     def _mode_record(self, tm: Any, t: float) -> ModeRecord:

@@ -183,6 +183,10 @@ def test_estimate_round_trip_through_cdr():
         sample_rate=100.0, prediction_error_rms_per_channel=np.array([0.1, np.nan]),
         converged=True, samples_used=4000,
         modes=[ModeRecord(3, "tracked", 2.0, 0.01, 0.02, 0.002, 0.5, 12.0, shape)],
+        health=1, health_reason="outliers rejected", band_min_hz=0.5, band_max_hz=40.0,
+        scheduling_value=33.5,
+        predicted_modes=[ModeRecord(0, "tracked", 33.4, 0.1, 0.003, np.nan, np.nan, 0.0,
+                                    np.zeros(0, complex))],
     )
     raw = ts.serialize_cdr(mc.estimate_rosbags(rec, ts), "sysid_msgs/msg/ModalEstimate")
     back = mc.estimate_from_msg(ts.deserialize_cdr(raw, "sysid_msgs/msg/ModalEstimate"))
@@ -192,6 +196,9 @@ def test_estimate_round_trip_through_cdr():
     np.testing.assert_allclose(np.abs(m.shape), [0.5, 1.0])  # normalised to max 1
     np.testing.assert_allclose(np.angle(m.shape[0]), 0.3 - np.pi)  # relative to the largest
     assert np.isnan(back.prediction_error_rms_per_channel[1])
+    assert (back.health, back.health_reason) == (1, "outliers rejected")
+    assert (back.band_min_hz, back.band_max_hz, back.scheduling_value) == (0.5, 40.0, 33.5)
+    assert [p.frequency_hz for p in back.predicted_modes] == [33.4]
 
 
 @pytest.mark.parametrize("order", [0, 2])

@@ -96,6 +96,12 @@ def _source_bag(path: Path) -> Path:
         prediction_error_rms_per_channel=np.array([0.1, float("nan")]),
         converged=True,
         samples_used=100,
+        health=1,
+        health_reason="outliers rejected",
+        band_min=0.0,
+        band_max=40.0,
+        scheduling_value=float("nan"),
+        predicted_modes=[],
     )
     return bag_io.write_bag(
         path,
