@@ -3,7 +3,8 @@
     ros2 launch notch_filter_node notch_filter.launch.py [params_file:=FILE] [with_sysid:=true]
 
 Both nodes read ``params_file`` (each takes its own section: ``sysid_node:`` and
-``notch_filter_node:``). sysid_node publishes /modal_estimate from /vibration (and /excitation);
+``notch_filter_node:``); the default is the main job's ``config/adaptive_notch.yaml``, the file
+``ros2_ws/demo`` runs, so the launch behaves as the demo does. sysid_node publishes /modal_estimate from /vibration (and /excitation);
 notch_filter_node filters /vibration into /vibration_filtered and publishes /notch_bank.
 """
 
@@ -19,7 +20,7 @@ from launch_ros.actions import Node
 
 def generate_launch_description() -> LaunchDescription:
     default_params = os.path.join(
-        get_package_share_directory("notch_filter_node"), "config", "notch_filter_node.yaml"
+        get_package_share_directory("notch_filter_node"), "config", "adaptive_notch.yaml"
     )
     params = LaunchConfiguration("params_file")
     return LaunchDescription([

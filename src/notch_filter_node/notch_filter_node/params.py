@@ -9,11 +9,13 @@ start-up (topics: remap them or pass them with --ros-args -p). :func:`validate` 
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Literal
 
-from notch_filter_node.policy import PolicyConfig, check_config
+from notch_filter_node.policy import BUDGET_PRIORITIES, PolicyConfig, check_config
 
 Kind = Literal["live", "structural", "read_only"]
 SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
@@ -71,6 +73,13 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("substep", int, 8,
        "Sub-block length over which the coefficients are held while a notch moves [samples]",
        "structural", lo=1, hi=256),
+    _p("rate_tolerance", float, 0.02,
+       "Relative difference between the rate the stamps measure and the bank's rate beyond "
+       "which the bank is re-designed at the measured rate [-]", lo=0.001, hi=1.0),
+    _p("layout_confirm", int, 5,
+       "Messages in a row a new channel layout (names or count) must come in before the bank "
+       "adopts it; until then its known channels are filtered, new ones pass through [-]",
+       lo=1, hi=10000),
     # -- retuning policy (live) --
     _p("slew_rate", float, _D.slew_rate,
        "Largest rate of change of a notch centre and bandwidth [Hz/s]", lo=0.001, hi=1000.0,
@@ -87,13 +96,24 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=0.0, hi=50000.0, unit="Hz"),
     _p("depth", float, _D.depth, "Depth of the adaptive notches at their centre [dB]",
        lo=3.5, hi=80.0, unit="dB"),
-    _p("min_attenuation", float, _D.min_attenuation,
-       "Attenuation kept over the uncertainty interval of the mode frequency; sets the "
-       "bandwidth (must be below depth) [dB]", lo=0.5, hi=79.0, unit="dB"),
+    _p("peak_reduction", float, _D.peak_reduction,
+       "Required reduction of each notched mode's resonance peak by the bank, over the mode's "
+       "uncertainty (gain stabilization); sets each notch's width (must be below depth) [dB]",
+       lo=0.5, hi=79.0, unit="dB"),
     _p("sigma_k", float, _D.sigma_k,
-       "Half-width of the uncertainty interval in frequency stds [-]", lo=0.0, hi=10.0),
-    _p("damping_gain", float, _D.damping_gain,
-       "Bandwidth is at least damping_gain * 2 (zeta + zeta_std) f [-]", lo=0.0, hi=20.0),
+       "Half-width of the mode's frequency interval in frequency stds [-]", lo=0.0, hi=10.0),
+    _p("damping_sigma_k", float, _D.damping_sigma_k,
+       "The width is designed for a damping up to zeta + damping_sigma_k * zeta_std [-]",
+       lo=0.0, hi=10.0),
+    _p("drift_window", float, _D.drift_window,
+       "Span of recent estimates the drift rate of a mode is fitted over [s]", lo=0.1,
+       hi=600.0, unit="s"),
+    _p("drift_rate_min", float, _D.drift_rate_min,
+       "Drift rate a mode is assumed capable of at least, as a fraction of its frequency per "
+       "second, while its estimate ages [1/s]", lo=0.0, hi=10.0, unit="1/s"),
+    _p("design_horizon", float, _D.design_horizon,
+       "A width is designed for the estimate age 1.5 x now + design_horizon, re-designed when "
+       "the age outgrows it [s]", lo=0.0, hi=60.0, unit="s"),
     _p("damping_max", float, _D.damping_max,
        "Modes with a larger damping ratio get no notch (well damped or spurious) [-]",
        lo=0.0, hi=1.0),
@@ -109,17 +129,28 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("phase_lag_budget", float, _D.phase_lag_budget,
        "Largest total phase lag of the adaptive notches at crossover_frequency [deg]",
        lo=0.0, hi=180.0, unit="deg"),
+    _p("budget_priority", str, _D.budget_priority,
+       "What gives way when the notches' widths exceed phase_lag_budget: 'phase_lag' narrows "
+       "them (peak reduction falls short, reported), 'peak_reduction' keeps them (budget "
+       "exceeded, reported)", choices=BUDGET_PRIORITIES),
     _p("crossover_frequency", float, _D.crossover_frequency,
        "Crossover frequency of the loop the bank sits in [Hz]", lo=0.001, hi=10000.0, unit="Hz"),
     _p("stale_timeout", float, _D.stale_timeout,
-       "Age of the latest estimate at which the fallback notch is at full depth [s]",
+       "Estimate age beyond which the bank holds the notches that were tracking, widening them "
+       "by the drift their modes could have made (or falls back if none was tracking) [s]",
        lo=0.01, hi=3600.0, unit="s"),
+    _p("fallback_timeout", float, _D.fallback_timeout,
+       "Estimate age at which held notches give way to the static fallback notch (at full "
+       "depth by then) [s]", lo=0.02, hi=36000.0, unit="s"),
     _p("fallback_ramp", float, _D.fallback_ramp,
-       "Time the fallback notch takes to fade in (starts at stale_timeout - fallback_ramp) [s]",
+       "Time the fallback notch takes to fade in (ends at the timeout) [s]",
        lo=0.001, hi=600.0, unit="s"),
+    _p("future_tolerance", float, _D.future_tolerance,
+       "Estimates stamped further ahead of the signal's data time are rejected (and counted) "
+       "[s]", lo=0.0, hi=3600.0, unit="s"),
     _p("hold_time", float, _D.hold_time,
-       "Time a lost mode's notch holds its centre before fading out [s]", lo=0.0, hi=3600.0,
-       unit="s"),
+       "Time a lost mode's notch holds its centre before fading out; longest hold on an "
+       "estimator FAULT before the fallback [s]", lo=0.0, hi=3600.0, unit="s"),
     _p("fade_time", float, _D.fade_time,
        "Time a notch takes to fade its depth in or out [s]", lo=0.001, hi=3600.0, unit="s"),
     _p("fallback_center", float, _D.fallback_center, "Centre of the static fallback notch [Hz]",
@@ -189,6 +220,77 @@ def validate(name: str, value: Any) -> str:
     if name.endswith("_topic") and not value.startswith("/"):
         return f"{name}='{value}' must be an absolute topic name (start with '/')"
     return ""
+
+
+#: Other nodes of the suite whose sections a shared parameter file may hold.
+SUITE_NODES = ("sysid_node",)
+#: Parameters every ROS node has.
+ROS_PARAMS = ("use_sim_time", "start_type_description_service")
+
+
+def closest(name: str, candidates: Sequence[str]) -> str:
+    """' (did you mean X?)' for the closest candidate, or ''."""
+    match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean '{match[0]}'?)" if match else ""
+
+
+def check_params_file(path: str, node_name: str) -> str:
+    """A ROS 2 parameter file as this node reads it: '' when fine, else a one-line reason (not
+    YAML, not a mapping, a section named like this node but misspelt, an unknown parameter in
+    this node's section, with the closest valid name). Sections of other nodes and wildcard
+    sections (``/**``) are left to their nodes."""
+    import yaml
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = yaml.safe_load(fh)
+    except OSError as err:
+        return f"cannot read parameter file {path}: {err.strerror}"
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or "syntax error"
+        return f"parameter file {path} is not valid YAML{where}: {problem}"
+    if doc is None:
+        return ""
+    if not isinstance(doc, dict):
+        return f"parameter file {path}: expected 'NODE_NAME: ros__parameters: ...' at the top"
+    for key, section in doc.items():
+        name = str(key).strip("/").split("/")[-1]
+        if name in ("**", "*"):
+            continue
+        if name != node_name:
+            if name not in SUITE_NODES and difflib.SequenceMatcher(
+                    None, name, node_name).ratio() >= 0.75:
+                return (f"parameter file {path}: section '{key}' matches no node "
+                        f"(did you mean '{node_name}'?)")
+            continue
+        params = section.get("ros__parameters") if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            return f"parameter file {path}: section '{key}' has no 'ros__parameters:' mapping"
+        for pname in params:
+            if pname not in SPECS and pname not in ROS_PARAMS:
+                return (f"parameter file {path}: unknown parameter '{pname}' for {node_name}"
+                        + closest(str(pname), list(SPECS)))
+    return ""
+
+
+TYPE_NAMES = {float: "double (float)", int: "integer", str: "string", bool: "bool"}
+ARTICLE = {float: "a", int: "an", str: "a", bool: "a"}
+
+
+def type_error(name: str, value: Any) -> str:
+    """'' when ``value`` has the parameter's type (an integer for a double is fine), else a
+    reason naming both types."""
+    spec = SPECS[name]
+    ok = isinstance(value, spec.type) and not (spec.type is int and isinstance(value, bool))
+    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
+        ok = True
+    if ok:
+        return ""
+    got = TYPE_NAMES.get(type(value), type(value).__name__)
+    return (f"parameter '{name}' must be {ARTICLE[spec.type]} {TYPE_NAMES[spec.type]}, got "
+            f"{ARTICLE.get(type(value), 'a')} {got} ({value!r})")
 
 
 def policy_config(values: dict[str, Any]) -> PolicyConfig:
