@@ -51,7 +51,8 @@ from rclpy.qos import (
 from sysid_msgs.msg import ResidualSpectrum
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
-from sysid_node.pipeline import EstimateRecord, worker_main
+from sysid_node.pipeline import worker_main
+from sysid_node.records import EstimateRecord, stack_blocks
 
 ESTIMATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -267,7 +268,7 @@ class SysidNode(Node):
             stacked = [
                 (stream, t, v)
                 for stream in ("output", "input")
-                for t, v in mc.stack_blocks([(t, v) for s_, t, v in items if s_ == stream])
+                for t, v in stack_blocks([(t, v) for s_, t, v in items if s_ == stream])
             ]
             n = sum(len(t) for _, t, _ in stacked)
             self._in_flight += n
