@@ -4,8 +4,9 @@
 
 Both nodes read ``params_file`` (each takes its own section: ``sysid_node:`` and
 ``notch_filter_node:``); the default is the main job's ``config/adaptive_notch.yaml``, the file
-``ros2_ws/demo`` runs, so the launch behaves as the demo does. sysid_node publishes /modal_estimate from /vibration (and /excitation);
-notch_filter_node filters /vibration into /vibration_filtered and publishes /notch_bank.
+``ros2_ws/demo`` runs, so the launch behaves as the demo does. sysid_node publishes
+/modal_estimate from /vibration (and /excitation); notch_filter_node filters /vibration into
+/vibration_filtered and publishes /notch_bank.
 """
 
 import os
