@@ -191,7 +191,7 @@ def analyse(bag: Path, recorded: Path, params: Path | None = None) -> DemoResult
                 ]
                 res.banks.append({"t": t, "notches": notches, "fallback": msg.fallback_active,
                                   "state": int(msg.bank_state), "reason": msg.reason,
-                                  "phase_lag": msg.phase_lag})
+                                  "phase_lag": msg.phase_lag, "age": msg.estimate_age})
     res.estimates.sort(key=lambda r: r["t"])
     res.banks.sort(key=lambda r: r["t"])
     out = read_signals(recorded, ["/vibration_filtered"]).get("/vibration_filtered")

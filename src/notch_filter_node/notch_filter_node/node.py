@@ -25,17 +25,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterException,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -60,6 +50,7 @@ from notch_filter_node.policy import (
 )
 from sysid_msgs.msg import ModalEstimate, Notch, NotchBank
 from sysid_node import msg_convert as mc
+from sysid_node import node_params as NP
 
 ESTIMATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -72,28 +63,17 @@ STATUS_NAMES = {0: "tentative", 1: "tracked", 2: "lost"}
 RATE_SAMPLES = 20
 #: Bad-input events within this many seconds (wall clock) set the diagnostics level to WARN.
 RECENT_S = 10.0
+#: Lost samples up to this long [s] are bridged in the filter memory (longer gaps restart it).
+BRIDGE_S = 0.5
 
 
 class StartupError(RuntimeError):
     """The node cannot start; ``str(err)`` is a one-line reason."""
 
 
-def descriptor(spec: P.ParamSpec) -> ParameterDescriptor:
-    """ROS parameter descriptor (description, range, read-only) of a parameter spec."""
-    text = spec.description
-    if spec.choices:
-        text += f" [{'|'.join(spec.choices)}]"
-    text += {"structural": " (structural: rebuilds the bank)", "read_only": " (read-only)",
-             "live": " (live-tunable)"}[spec.kind]
-    d = ParameterDescriptor(description=text, read_only=spec.kind == "read_only")
-    if spec.type is float:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
-                                                     to_value=float(spec.hi))]
-    elif spec.type is int:
-        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi))]
-    if spec.choices:
-        d.additional_constraints = "one of: " + ", ".join(spec.choices)
-    return d
+#: What each kind of parameter does, appended to its description.
+KIND_NOTES = {"structural": " (structural: rebuilds the bank)", "read_only": " (read-only)",
+              "live": " (live-tunable)"}
 
 
 def estimate_input(msg: Any, received: float = math.nan) -> EstimateInput:
@@ -141,15 +121,11 @@ class NotchFilterNode(Node):
     def __init__(self) -> None:
         # undeclared names reach _on_set_parameters, which refuses them with the closest name
         super().__init__("notch_filter_node", allow_undeclared_parameters=True)
-        self._coerce_int_overrides()
-        self._check_overrides()
         try:
-            for spec in P.PARAMS:
-                self.declare_parameter(spec.name, spec.default, descriptor(spec))
-        except (InvalidParameterValueException, InvalidParameterTypeException,
-                ParameterException) as err:
-            raise StartupError(str(err).splitlines()[0]) from None
-        self.values = {s.name: self.get_parameter(s.name).value for s in P.PARAMS}
+            NP.check_overrides(self, P.SPECS)  # unknown names, wrong types: one line
+            self.values = NP.declare(self, P.PARAMS, KIND_NOTES)
+        except NP.ParameterError as err:
+            raise StartupError(str(err)) from None
         reason = P.validate_set(self.values)
         if reason:
             raise StartupError(f"invalid parameters: {reason}")
@@ -165,6 +141,9 @@ class NotchFilterNode(Node):
         self.stream = ST.StampCheck()
         self.layout = ST.LayoutTracker(int(v["layout_confirm"]))
         self._declared_fs = math.nan  # rate the parameter or SignalBlock states
+        self._prev_ns: int | None = None  # last sample's stamp and values (bank order)
+        self._prev_row: np.ndarray | None = None
+        self._missing = 0
         self._published: tuple = ()
         self._last_bank_wall = -math.inf
         self._revision = -1
@@ -196,51 +175,18 @@ class NotchFilterNode(Node):
         )
 
     # ---- parameters ----
-    def _coerce_int_overrides(self) -> None:
-        """Accept ``depth: 30`` (an integer) for a float parameter, as users write it."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, p in list(overrides.items()):
-            spec = P.SPECS.get(name)
-            if spec and spec.type is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-
-    def _check_overrides(self) -> None:
-        """Unknown names (with the closest valid one) and wrong types (naming both) in the
-        start-up values (parameter files, -p): refused with a one-line reason."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, p in overrides.items():
-            if name in P.ROS_PARAMS or name.startswith("qos_overrides."):
-                continue
-            if name not in P.SPECS:
-                raise StartupError(f"unknown parameter '{name}'"
-                                   + P.closest(name, list(P.SPECS)))
-            reason = P.type_error(name, p.value)
-            if reason:
-                raise StartupError(reason)
-
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        unknown = [p.name for p in parameters if p.name not in P.SPECS
-                   and p.name not in P.ROS_PARAMS]
-        if unknown:
-            reason = f"unknown parameter '{unknown[0]}'" + P.closest(unknown[0], list(P.SPECS))
+        reason = NP.unknown_names(P.SPECS, [p.name for p in parameters])
+        if reason:
             self.get_logger().warning(f"parameter change rejected: {reason}")
             return SetParametersResult(successful=False, reason=reason)
         changes = {p.name: p.value for p in parameters if p.name in P.SPECS}
         if not changes:
             return SetParametersResult(successful=True)
-        reason = next((r for r in (P.type_error(k, v) for k, v in changes.items()) if r), "")
         new = {**self.values, **changes}
         fs = self.filter.fs if self.filter is not None else math.nan
-        reason = reason or P.validate_set(new, fs if new["sample_rate"] == 0 else math.nan)
-        if not reason:
-            ro = [k for k in changes if P.SPECS[k].kind == "read_only"
-                  and changes[k] != self.values[k]]
-            if ro:
-                reason = f"{', '.join(ro)} can only be set at start-up"
+        reason = P.validate_set(new, fs if new["sample_rate"] == 0 else math.nan)
+        reason = reason or NP.read_only_changes(P.SPECS, self.values, changes)
         if reason:
             self.get_logger().warning(f"parameter change rejected: {reason}")
             return SetParametersResult(successful=False, reason=reason)
@@ -424,6 +370,7 @@ class NotchFilterNode(Node):
         t_last = float(stamps[-1]) * 1e-9
         self._last_stamp_s = t_last
         known = mapping.index >= 0
+        self._bridge(int(stamps[0]), x, mapping)
         if known.all():
             same = np.array_equal(mapping.index, np.arange(self.filter.channels))
             y = self.filter.process(x, t_last, None if same else mapping.index)
@@ -434,12 +381,37 @@ class NotchFilterNode(Node):
             else:
                 self.filter.policy.advance(t_last, x.shape[0] / self.filter.fs)
         self.out_pub.publish(filled_message(msg, self.kind, y, self.axes))
+        self._prev_ns = int(stamps[-1])
+        if self._prev_row is None or self._prev_row.size != self.filter.channels:
+            self._prev_row = np.full(self.filter.channels, np.nan)
+        self._prev_row[mapping.index[known]] = x[-1, known]
         n = x.shape[0]
         self._samples += n
         per_sample = (time.perf_counter() - t0) / n
         self._cost_s = per_sample if self._cost_s == 0 else 0.99 * self._cost_s + 0.01 * per_sample
         self._drain_transitions()
         self._maybe_publish_bank()
+
+    def _bridge(self, first_ns: int, x: np.ndarray, mapping: ST.Mapping) -> None:
+        """Samples lost before this message: run the filter over a straight line in their place
+        (not published), so its memory keeps the stream's time base; counted."""
+        fs = self.filter.fs
+        missing = ST.missing_samples(self._prev_ns, first_ns, fs)
+        if not missing:
+            return
+        self._missing += missing
+        self._event("gap", f"{missing} sample(s) missing before {first_ns * 1e-9:.6f} s: "
+                    "filter memory bridged" if missing <= BRIDGE_S * fs else
+                    f"{missing} sample(s) missing before {first_ns * 1e-9:.6f} s: filter goes on",
+                    n=missing)
+        full = mapping.index.size == self.filter.channels and (mapping.index >= 0).all()
+        if missing > BRIDGE_S * fs or not full or self._prev_row is None or \
+                self._prev_row.size != self.filter.channels:
+            return
+        first = np.empty(self.filter.channels)
+        first[mapping.index] = x[0]
+        self.filter.process(ST.bridge(self._prev_row, first, missing),
+                            first_ns * 1e-9 - 1.0 / fs)
 
     def _map_channels(self, msg: Any, channels: int) -> ST.Mapping:
         names = list(getattr(msg, "channel_names", []))
@@ -546,6 +518,7 @@ class NotchFilterNode(Node):
             "measured_rate_hz": f"{self.stream.rate():.4g}",
             "channels": str(flt.channels if flt else 0),
             "samples_filtered": str(self._samples),
+            "samples_missing": str(self._missing),
         }
         if st is not None:
             guaranteed, nominal = flt.peak_reductions()

@@ -9,49 +9,27 @@ start-up (topics: remap them or pass them with --ros-args -p). :func:`validate` 
 
 from __future__ import annotations
 
-import difflib
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, fields
-from typing import Any, Literal
+from dataclasses import fields
+from typing import Any
+
+from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
 
 from notch_filter_node.policy import BUDGET_PRIORITIES, PolicyConfig, check_config
+from sysid_node import node_params as NP
 
-Kind = Literal["live", "structural", "read_only"]
-SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
-QOS_CHOICES = ("sensor_data", "reliable")
-IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
 MAX_CHANNELS = 64
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One node parameter: type, default, range (``lo``/``hi`` inclusive), kind."""
-
-    name: str
-    type: type
-    default: Any
-    description: str
-    kind: Kind = "live"
-    lo: float | None = None
-    hi: float | None = None
-    choices: tuple[str, ...] | None = None
-    unit: str = ""
-
-
-def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw: Any) -> ParamSpec:
-    return ParamSpec(name, typ, default, desc, kind, **kw)
+_p = ParamSpec  # _p(name, type, default, description, kind, lo=, hi=, choices=, unit=)
 
 
 _D = PolicyConfig()
 PARAMS: tuple[ParamSpec, ...] = (
     # -- topics and QoS (read-only) --
     _p("signal_topic", str, "/vibration", "Topic of the signal to filter", "read_only"),
-    _p("signal_type", str, "SignalSample", "Message type of signal_topic", "read_only",
-       choices=SIGNAL_TYPES),
-    _p("imu_axes", str, "az",
-       "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
-       "wx,wy,wz (angular velocity); the other fields are passed through", "read_only"),
+    NP.signal_type_spec("signal_type", "signal_topic", "read_only"),
+    NP.imu_axes_spec("read_only", "; the other fields are passed through"),
     _p("output_topic", str, "/vibration_filtered",
        "Topic of the filtered signal (same type and header stamp as the input)", "read_only"),
     _p("estimate_topic", str, "/modal_estimate", "Topic of sysid_msgs/ModalEstimate",
@@ -61,7 +39,7 @@ PARAMS: tuple[ParamSpec, ...] = (
        "[messages]", "read_only", lo=1, hi=100000),
     _p("output_qos", str, "reliable",
        "QoS of the filtered output: 'reliable' (matches reliable and best-effort subscribers) or "
-       "'sensor_data' (best effort)", "read_only", choices=QOS_CHOICES),
+       "'sensor_data' (best effort)", "read_only", choices=NP.QOS_CHOICES),
     _p("max_notches", int, _D.max_notches,
        "Number of adaptive notch sections (the fallback notch has its own) [-]", "read_only",
        lo=1, hi=20),
@@ -180,11 +158,6 @@ def defaults() -> dict[str, Any]:
     return {s.name: s.default for s in PARAMS}
 
 
-def parse_list(text: str) -> list[str]:
-    """'a, b' -> ['a', 'b']."""
-    return [a.strip() for a in str(text).split(",") if a.strip()]
-
-
 def disabled_channels(text: str) -> list[int]:
     """'0, 3' -> [0, 3] (validated by :func:`validate`)."""
     return [int(a) for a in parse_list(text)]
@@ -192,26 +165,13 @@ def disabled_channels(text: str) -> list[int]:
 
 def validate(name: str, value: Any) -> str:
     """Check one value against its spec; '' if valid, else the reason."""
-    spec = SPECS.get(name)
-    if spec is None:
-        return f"unknown parameter '{name}'"
-    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    if not isinstance(value, spec.type) or (spec.type is int and isinstance(value, bool)):
-        return f"{name} must be of type {spec.type.__name__}, got {type(value).__name__}"
-    if spec.type is float and not math.isfinite(value):
-        return f"{name} must be finite, got {value}"
-    unit = f" {spec.unit}" if spec.unit else ""
-    if spec.lo is not None and value < spec.lo:
-        return f"{name}={value} is below the minimum {spec.lo:g}{unit}"
-    if spec.hi is not None and value > spec.hi:
-        return f"{name}={value} is above the maximum {spec.hi:g}{unit}"
-    if spec.choices is not None and value not in spec.choices:
-        return f"{name}='{value}' is not one of {', '.join(spec.choices)}"
+    return check(SPECS, name, value) or _check_notch(name, value)
+
+
+def _check_notch(name: str, value: Any) -> str:
+    """This node's own checks of a value of the right type ('' if valid)."""
     if name == "imu_axes":
-        axes = parse_list(value)
-        if not axes or any(a not in IMU_AXES for a in axes) or len(set(axes)) != len(axes):
-            return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+        return check_imu_axes(value)
     if name == "disabled_channels":
         items = parse_list(value)
         if not all(a.isdigit() and int(a) < MAX_CHANNELS for a in items):
@@ -224,73 +184,12 @@ def validate(name: str, value: Any) -> str:
 
 #: Other nodes of the suite whose sections a shared parameter file may hold.
 SUITE_NODES = ("sysid_node",)
-#: Parameters every ROS node has.
-ROS_PARAMS = ("use_sim_time", "start_type_description_service")
-
-
-def closest(name: str, candidates: Sequence[str]) -> str:
-    """' (did you mean X?)' for the closest candidate, or ''."""
-    match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
-    return f" (did you mean '{match[0]}'?)" if match else ""
 
 
 def check_params_file(path: str, node_name: str) -> str:
-    """A ROS 2 parameter file as this node reads it: '' when fine, else a one-line reason (not
-    YAML, not a mapping, a section named like this node but misspelt, an unknown parameter in
-    this node's section, with the closest valid name). Sections of other nodes and wildcard
-    sections (``/**``) are left to their nodes."""
-    import yaml
-
-    try:
-        with open(path, encoding="utf-8") as fh:
-            doc = yaml.safe_load(fh)
-    except OSError as err:
-        return f"cannot read parameter file {path}: {err.strerror}"
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or "syntax error"
-        return f"parameter file {path} is not valid YAML{where}: {problem}"
-    if doc is None:
-        return ""
-    if not isinstance(doc, dict):
-        return f"parameter file {path}: expected 'NODE_NAME: ros__parameters: ...' at the top"
-    for key, section in doc.items():
-        name = str(key).strip("/").split("/")[-1]
-        if name in ("**", "*"):
-            continue
-        if name != node_name:
-            if name not in SUITE_NODES and difflib.SequenceMatcher(
-                    None, name, node_name).ratio() >= 0.75:
-                return (f"parameter file {path}: section '{key}' matches no node "
-                        f"(did you mean '{node_name}'?)")
-            continue
-        params = section.get("ros__parameters") if isinstance(section, dict) else None
-        if not isinstance(params, dict):
-            return f"parameter file {path}: section '{key}' has no 'ros__parameters:' mapping"
-        for pname in params:
-            if pname not in SPECS and pname not in ROS_PARAMS:
-                return (f"parameter file {path}: unknown parameter '{pname}' for {node_name}"
-                        + closest(str(pname), list(SPECS)))
-    return ""
-
-
-TYPE_NAMES = {float: "double (float)", int: "integer", str: "string", bool: "bool"}
-ARTICLE = {float: "a", int: "an", str: "a", bool: "a"}
-
-
-def type_error(name: str, value: Any) -> str:
-    """'' when ``value`` has the parameter's type (an integer for a double is fine), else a
-    reason naming both types."""
-    spec = SPECS[name]
-    ok = isinstance(value, spec.type) and not (spec.type is int and isinstance(value, bool))
-    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
-        ok = True
-    if ok:
-        return ""
-    got = TYPE_NAMES.get(type(value), type(value).__name__)
-    return (f"parameter '{name}' must be {ARTICLE[spec.type]} {TYPE_NAMES[spec.type]}, got "
-            f"{ARTICLE.get(type(value), 'a')} {got} ({value!r})")
+    """A parameter file as this node reads it ('' or a one-line reason): see
+    :func:`sysid_node.node_params.check_params_file`."""
+    return NP.check_params_file(path, node_name, SPECS, SUITE_NODES)
 
 
 def policy_config(values: dict[str, Any]) -> PolicyConfig:

@@ -7,6 +7,10 @@
   message makes that a multiple of the period, never less, so the period is the median of the
   intervals within a factor 1.5 of their 20th percentile (lost messages and jitter do not move
   it, a real rate change does within a fifth of the window).
+- :func:`missing_samples` / :func:`bridge`: a message that starts more than half a period after
+  the expected next sample follows lost ones; the filter is run over a straight line between
+  the last sample and the new one in their place (outputs not published), so its memory stays
+  on the stream's time base instead of seeing a phase jump.
 - :class:`LayoutTracker`: the channel layout (names, or count when unnamed). Channels are mapped
   to the bank's by name, so a reorder is filtered correctly at once; a new layout (other names
   or count) is adopted once it has come ``confirm`` messages in a row: until then its known
@@ -85,6 +89,20 @@ class StampCheck:
         """Measured sample rate [Hz], NaN while unknown."""
         p = self.period()
         return 1.0 / p if p > 0 else math.nan
+
+
+def missing_samples(prev_last_ns: int | None, first_ns: int, fs: float) -> int:
+    """Samples lost between a message's last sample and the next message's first (0 if none
+    or unknown)."""
+    if prev_last_ns is None or not fs > 0:
+        return 0
+    return max(int(round((first_ns - prev_last_ns) * 1e-9 * fs)) - 1, 0)
+
+
+def bridge(last_row: np.ndarray, first_row: np.ndarray, missing: int) -> np.ndarray:
+    """``missing`` rows on the straight line between two samples (both excluded)."""
+    w = (np.arange(1, missing + 1) / (missing + 1))[:, None]
+    return (1.0 - w) * last_row[None, :] + w * first_row[None, :]
 
 
 @dataclass

@@ -66,7 +66,7 @@ def test_shipped_yaml_is_the_defaults():
     ("text", "words"),
     [
         ("notch_filter_node:\n  ros__parameters:\n    depht: 30.0\n",
-         "unknown parameter 'depht' for notch_filter_node (did you mean 'depth'?)"),
+         "unknown parameter 'depht' (did you mean 'depth'?) for notch_filter_node"),
         ("notch_filer_node:\n  ros__parameters:\n    depth: 30.0\n",
          "section 'notch_filer_node' matches no node (did you mean 'notch_filter_node'?)"),
         ("notch_filter_node:\n  ros__parameters:\n    depth: [30.0\n", "not valid YAML at line"),
@@ -93,14 +93,16 @@ def test_params_file_with_other_nodes_and_wildcards_is_fine(tmp_path):
         assert P.check_params_file(str(cfg), "notch_filter_node") == "", cfg
 
 
-def test_type_errors_name_both_types():
-    assert P.type_error("depth", 30) == ""
-    assert P.type_error("depth", "deep") == (
-        "parameter 'depth' must be a double (float), got a string ('deep')")
-    assert "must be an integer, got a double" in P.type_error("max_notches", 3.5)
-    assert "got a bool" in P.type_error("max_notches", True)
-    assert "(did you mean 'forgetting_factor'?)" in P.closest("forgeting_factor",
-                                                              ["forgetting_factor", "depth"])
+def test_type_errors_name_both_types_and_unknown_names_the_closest():
+    from sysid_node import node_params as NP
+
+    assert P.validate("depth", 30) == ""
+    assert P.validate("depth", "deep") == (
+        "depth: expected double (type float), got string (type str)")
+    assert NP.unknown_names(P.SPECS, ["depth", "use_sim_time", "depht"]) == (
+        "unknown parameter 'depht' (did you mean 'depth'?)")
+    assert NP.closest("forgeting_factor", ["forgetting_factor", "depth"]) == (
+        " (did you mean 'forgetting_factor'?)")
 
 
 def test_message_adapters():
