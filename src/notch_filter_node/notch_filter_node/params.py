@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any, Literal
 
+from sysid_node.topics import topic_name_error
+
 from notch_filter_node.policy import PolicyConfig, check_config
 
 Kind = Literal["live", "structural", "read_only"]
@@ -44,17 +46,17 @@ def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw:
 _D = PolicyConfig()
 PARAMS: tuple[ParamSpec, ...] = (
     # -- topics and QoS (read-only) --
-    _p("signal_topic", str, "/vibration", "Topic of the signal to filter", "read_only"),
+    _p("signal_topic", str, "vibration", "Topic of the signal to filter", "read_only"),
     _p("signal_type", str, "SignalSample", "Message type of signal_topic", "read_only",
        choices=SIGNAL_TYPES),
     _p("imu_axes", str, "az",
        "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
        "wx,wy,wz (angular velocity); the other fields are passed through", "read_only"),
-    _p("output_topic", str, "/vibration_filtered",
+    _p("output_topic", str, "vibration_filtered",
        "Topic of the filtered signal (same type and header stamp as the input)", "read_only"),
-    _p("estimate_topic", str, "/modal_estimate", "Topic of sysid_msgs/ModalEstimate",
+    _p("estimate_topic", str, "modal_estimate", "Topic of sysid_msgs/ModalEstimate",
        "read_only"),
-    _p("bank_topic", str, "/notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
+    _p("bank_topic", str, "notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
     _p("qos_depth", int, 100, "History depth of the signal subscription and publisher "
        "[messages]", "read_only", lo=1, hi=100000),
     _p("output_qos", str, "reliable",
@@ -186,8 +188,10 @@ def validate(name: str, value: Any) -> str:
         if not all(a.isdigit() and int(a) < MAX_CHANNELS for a in items):
             return (f"disabled_channels='{value}': use comma-separated channel indices "
                     f"0..{MAX_CHANNELS - 1}")
-    if name.endswith("_topic") and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name.endswith("_topic"):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 

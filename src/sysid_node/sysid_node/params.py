@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sysid_node.decimation import auto_factor
+from sysid_node.topics import topic_name_error
 
 Kind = Literal["live", "structural", "read_only"]
 
@@ -122,12 +123,14 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
        unit="s"),
     # -- topics and QoS (structural: the node subscribes again) --
-    _p("output_topic", str, "/vibration", "Topic of the measured responses (outputs)",
+    _p("output_topic", str, "vibration",
+       "Topic of the measured responses (outputs); relative names follow the node's namespace",
        "structural"),
     _p("output_type", str, "SignalSample", "Message type of output_topic", "structural",
        choices=SIGNAL_TYPES),
-    _p("input_topic", str, "/excitation",
-       "Topic of the measured excitation (inputs); empty = output-only", "structural"),
+    _p("input_topic", str, "excitation",
+       "Topic of the measured excitation (inputs); empty = output-only; relative names follow "
+       "the node's namespace", "structural"),
     _p("input_type", str, "SignalSample", "Message type of input_topic", "structural",
        choices=SIGNAL_TYPES),
     _p("imu_axes", str, "az",
@@ -172,8 +175,10 @@ def validate(name: str, value: Any) -> str:
             return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
     if name == "block_rows" and value == 1:
         return "block_rows=1 is too small: use 0 (auto) or at least 2"
-    if name in ("output_topic", "input_topic") and value and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name == "output_topic" or (name == "input_topic" and value):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 

@@ -1,6 +1,7 @@
 """record: write DDS topics into a rosbag2 until stopped (stand-in for ros2 bag record).
 
     ros2 run sysid_node record /modal_estimate /vibration -o out/bag [--duration 30]
+    ros2 run sysid_node record modal_estimate vibration -o out/left --ros-args -r __ns:=/left_wing
 
 Subscribes with ``raw=True`` and writes the serialized bytes it receives, so the bag is
 byte-exact. Types come from the ROS graph (``--type TOPIC=pkg/msg/Name`` overrides, and lets a
@@ -10,7 +11,9 @@ subscription, best-effort ones a best-effort subscription, others (and a ``--typ
 no publisher yet) reliable volatile. The offered QoS is stored in the bag. DDS pads serialized
 messages to a multiple of 4 bytes, so a recorded message may end in up to 3 more zero bytes
 than the one in a bag written by rosbags. Stops on SIGINT/SIGTERM or after ``--duration`` and
-closes the bag cleanly.
+closes the bag cleanly. Relative topic names are resolved in the recorder's namespace
+(``--ros-args -r __ns:=/left_wing``: ``vibration`` is ``/left_wing/vibration``); the bag holds
+the fully qualified names.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from pathlib import Path
 
 from sysid_node.bag_io import STORAGES, BagError, BagWriter, make_qos
 from sysid_node.tools import ToolError, fail, msg_class
+from sysid_node.topics import split_ros_args
 
 PROG = "record"
 
@@ -71,10 +75,13 @@ def run(args: argparse.Namespace) -> int:
     def on_signal(signum, frame) -> None:
         stop["flag"] = True
 
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[PROG, *args.ros_args], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     node = rclpy.create_node("record")
+    # fully qualified names (namespace and remapping applied): what the graph and the bag use
+    args.topics = list(dict.fromkeys(node.resolve_topic_name(t) for t in args.topics))
+    args.types = {node.resolve_topic_name(t): v for t, v in args.types.items()}
     bag = BagWriter(args.output, storage=args.storage).open()
     subs = {}
 
@@ -151,10 +158,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     try:
-        args = _parse(argv)
+        args = _parse(own)
     except SystemExit as exit_:
         return int(exit_.code or 0)
+    args.ros_args = ros_args
     try:
         return run(args)
     except (BagError, ToolError) as err:
