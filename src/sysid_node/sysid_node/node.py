@@ -27,17 +27,7 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterException,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -50,8 +40,10 @@ from rclpy.qos import (
 
 from sysid_msgs.msg import ResidualSpectrum
 from sysid_node import msg_convert as mc
+from sysid_node import node_params as NP
 from sysid_node import params as P
-from sysid_node.pipeline import EstimateRecord, worker_main
+from sysid_node.pipeline import worker_main
+from sysid_node.records import EstimateRecord, stack_blocks
 
 ESTIMATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
@@ -73,22 +65,9 @@ class StartupError(RuntimeError):
     """The node cannot start; ``str(err)`` is a one-line reason."""
 
 
-def descriptor(spec: P.ParamSpec) -> ParameterDescriptor:
-    """ROS parameter descriptor (description, range, read-only) of a parameter spec."""
-    text = spec.description
-    if spec.choices:
-        text += f" [{'|'.join(spec.choices)}]"
-    text += {"structural": " (structural: a change resets the estimator)",
-             "read_only": " (read-only)", "live": " (live-tunable)"}[spec.kind]
-    d = ParameterDescriptor(description=text, read_only=spec.kind == "read_only")
-    if spec.type is float:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
-                                                     to_value=float(spec.hi))]
-    elif spec.type is int:
-        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi))]
-    if spec.choices:
-        d.additional_constraints = "one of: " + ", ".join(spec.choices)
-    return d
+#: What each kind of parameter does, appended to its description.
+KIND_NOTES = {"structural": " (structural: a change resets the estimator)",
+              "read_only": " (read-only)", "live": " (live-tunable)"}
 
 
 def _qos(values: dict[str, Any]) -> QoSProfile:
@@ -116,14 +95,10 @@ class SysidNode(Node):
 
     def __init__(self) -> None:
         super().__init__("sysid_node")
-        self._coerce_int_overrides()
         try:
-            for spec in P.PARAMS:
-                self.declare_parameter(spec.name, spec.default, descriptor(spec))
-        except (InvalidParameterValueException, InvalidParameterTypeException,
-                ParameterException) as err:
-            raise StartupError(str(err).splitlines()[0]) from None
-        values = {s.name: self.get_parameter(s.name).value for s in P.PARAMS}
+            values = NP.declare(self, P.PARAMS, KIND_NOTES)
+        except NP.ParameterError as err:
+            raise StartupError(str(err)) from None
         reason = P.validate_set(values)
         if reason:
             raise StartupError(f"invalid parameters: {reason}")
@@ -183,16 +158,6 @@ class SysidNode(Node):
             raise StartupError(f"the estimator cannot start: {error}")
 
     # ---- parameters ----
-    def _coerce_int_overrides(self) -> None:
-        """Accept ``sample_rate: 100`` (an integer) for a float parameter, as users write it."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, p in list(overrides.items()):
-            spec = P.SPECS.get(name)
-            if spec and spec.type is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         # parameters rclpy owns (use_sim_time, ...) are not ours to check
         changes = {p.name: p.value for p in parameters if p.name in P.SPECS}
@@ -275,7 +240,7 @@ class SysidNode(Node):
             stacked = [
                 (stream, t, v)
                 for stream in ("output", "input")
-                for t, v in mc.stack_blocks([(t, v) for s_, t, v in items if s_ == stream])
+                for t, v in stack_blocks([(t, v) for s_, t, v in items if s_ == stream])
             ]
             n = sum(len(t) for _, t, _ in stacked)
             self._in_flight += n

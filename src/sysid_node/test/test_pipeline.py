@@ -11,7 +11,8 @@ import math
 
 import numpy as np
 import pytest
-from sysid_node.pipeline import EstimateRecord, Pipeline
+from sysid_node.pipeline import Pipeline
+from sysid_node.records import EstimateRecord
 from sysid_node.scenarios.paper import paper_example_data
 
 T0 = 1_700_000_000 * 10**9
@@ -172,7 +173,7 @@ def test_signal_block_and_imu_to_arrays():
 
 
 def test_estimate_round_trip_through_cdr():
-    from sysid_node.pipeline import ModeRecord
+    from sysid_node.records import ModeRecord
 
     from sysid_node import msg_convert as mc
 

@@ -140,11 +140,12 @@ def draw_modal_scenario(
     """A random modal record (issue #10's suite).
 
     Draws (unless given): ``fs`` 100-1000 Hz; ``n_modes`` 1-8 with frequencies log-uniform in
-    [``min_frequency_hz`` (default max(0.5 Hz, fs / 200)), 0.4 fs], separated (see
-    :func:`draw_frequencies`); damping 0.2-5 %; ``n_outputs`` 1-3; output-only or one measured
-    input (even odds); the sensor kind (``output``: displacement / velocity / acceleration); the
-    excitation among ``excitations`` (output-only: ambient white or coloured); each mode's level
-    (RMS on its largest output) log-uniform in 0.3-1; output noise 2-10 % of each output's RMS.
+    [``min_frequency_hz`` (default max(2 Hz, fs / 200): cycles enough in a few seconds), 0.4 fs],
+    separated (see :func:`draw_frequencies`); damping 0.2-5 %; ``n_outputs`` 1-3; output-only
+    or one measured input (even odds); the sensor kind (``output``: displacement, velocity or
+    acceleration); the excitation among ``excitations`` (output-only: ambient white or
+    coloured); each mode's level (RMS on its largest output) log-uniform in 0.3-1; output noise
+    2-10 % of each output's RMS.
     ``change`` ``"random"`` draws none (1/2), ``appear`` or ``jump`` (1/4 each); ``appear``: one
     mode (never the only one) starts from rest at 40-60 % of the record; ``jump``: one mode's
     frequency jumps by 5-20 % there (state carried). Default duration: 200 periods of the
@@ -155,7 +156,7 @@ def draw_modal_scenario(
     n_outputs = int(rng.integers(1, 4)) if n_outputs is None else n_outputs
     output_only = bool(rng.random() < 0.5) if output_only is None else output_only
     output = OUTPUT_KINDS[int(rng.integers(3))] if output is None else output
-    f_lo = max(0.5, fs / 200.0) if min_frequency_hz is None else min_frequency_hz
+    f_lo = max(2.0, fs / 200.0) if min_frequency_hz is None else min_frequency_hz
     band = (f_lo, max_frequency_fraction * fs)
     structure = draw_structure(rng, fs, n_modes, n_outputs, 1, band, damping, output)
     if change == "random":

@@ -19,14 +19,12 @@ the fully qualified names.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
 
 from sysid_node.bag_io import STORAGES, BagError, BagWriter, make_qos
-from sysid_node.tools import ToolError, fail, msg_class
-from sysid_node.topics import split_ros_args
+from sysid_node.tools import ToolError, msg_class, run_tool, start_node, stop_node
 
 PROG = "record"
 
@@ -68,17 +66,8 @@ def run(args: argparse.Namespace) -> int:
 
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
 
-    stop = {"flag": False}
-
-    def on_signal(signum, frame) -> None:
-        stop["flag"] = True
-
-    rclpy.init(args=[PROG, *args.ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node("record")
+    node, stop = start_node("record", args.ros_args)
     # fully qualified names (namespace and remapping applied): what the graph and the bag use
     args.topics = list(dict.fromkeys(node.resolve_topic_name(t) for t in args.topics))
     args.types = {node.resolve_topic_name(t): v for t, v in args.types.items()}
@@ -145,9 +134,7 @@ def run(args: argparse.Namespace) -> int:
             rclpy.spin_once(node, timeout_sec=0.0)
     finally:
         bag.close()
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        stop_node(node)
     never = [t for t in args.topics if t not in subs]
     if not args.quiet:
         counts = ", ".join(f"{t} {bag.counts.get(t, 0)}" for t in args.topics)
@@ -158,18 +145,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
-    try:
-        args = _parse(own)
-    except SystemExit as exit_:
-        return int(exit_.code or 0)
-    args.ros_args = ros_args
-    try:
-        return run(args)
-    except (BagError, ToolError) as err:
-        return fail(PROG, str(err))
-    except Exception as err:  # a CLI ends with one line, never a traceback
-        return fail(PROG, f"{type(err).__name__}: {err}")
+    return run_tool(PROG, _parse, run, argv)
 
 
 if __name__ == "__main__":

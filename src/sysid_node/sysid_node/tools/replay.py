@@ -17,14 +17,13 @@ one wing's namespace.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
 
 from sysid_node.bag_io import BagError, iter_messages, list_topics, open_bag
-from sysid_node.tools import ToolError, fail, msg_class
-from sysid_node.topics import split_ros_args, topic_name_error
+from sysid_node.tools import msg_class, run_tool, start_node, stop_node
+from sysid_node.topics import topic_name_error
 
 PROG = "replay"
 
@@ -103,7 +102,6 @@ def run(args: argparse.Namespace) -> int:
     classes = {t: msg_class(available[t][0]) for t in topics}
     latched = _transient_local(args.bag)
 
-    import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import (
         DurabilityPolicy,
@@ -112,17 +110,8 @@ def run(args: argparse.Namespace) -> int:
         ReliabilityPolicy,
         qos_profile_sensor_data,
     )
-    from rclpy.signals import SignalHandlerOptions
 
-    stop = {"flag": False}
-
-    def on_signal(signum, frame) -> None:
-        stop["flag"] = True
-
-    rclpy.init(args=[PROG, *args.ros_args], signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node("replay")
+    node, stop = start_node("replay", args.ros_args)
     try:
         pubs = {}
         for t in topics:
@@ -185,25 +174,12 @@ def run(args: argparse.Namespace) -> int:
             counts = ", ".join(f"{pubs[t].topic_name} {n}" for t, n in sent.items())
             print(f"[{PROG}] published {sum(sent.values())} messages in {took:.2f} s ({counts})")
     finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        stop_node(node)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
-    try:
-        args = _parse(own)
-    except SystemExit as exit_:
-        return int(exit_.code or 0)
-    args.ros_args = ros_args
-    try:
-        return run(args)
-    except (BagError, ToolError) as err:
-        return fail(PROG, str(err))
-    except Exception as err:  # a CLI ends with one line, never a traceback
-        return fail(PROG, f"{type(err).__name__}: {err}")
+    return run_tool(PROG, _parse, run, argv)
 
 
 if __name__ == "__main__":
