@@ -97,7 +97,7 @@ def test_bag_through_notch_filter_launch_then_sigint_to_the_group(tmp_path):
                      {"params_file": str(ADAPTIVE)})], log)
     _wait_for(log, [r"identifying modes from /vibration", r"filtering /vibration"], proc)
     replay = subprocess.run(
-        [sys.executable, "-m", "sysid_node.tools.replay", "--bag", str(BAG), "--rate", "8",
+        [sys.executable, "-m", "sysid_node.tools.replay", "--bag", str(BAG), "--rate", "4",
          "--quiet", "--wait-subscribers", "30"],
         capture_output=True, text=True, timeout=120,
     )
@@ -124,4 +124,4 @@ def test_sysid_launch_keeps_the_yaml_unless_an_argument_is_given(tmp_path):
     assert "[a.sysid_node]: identifying modes from /a/imu/data (Imu), output-only" in text
     # ... and an argument given on the command line wins over the YAML
     assert "[b.sysid_node]: identifying modes from /b/acc_b (Imu), output-only" in text
-    _assert_clean(log.read_text(), _interrupt(proc), ["sysid_node"])
+    _interrupt(proc)  # a clean stop is the other test's business
