@@ -31,6 +31,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from sysid_node.node import ESTIMATE_QOS  # the publisher's QoS of /modal_estimate
 
 from notch_filter_node import params as P
 from notch_filter_node.adaptive import AdaptiveNotchFilter
@@ -39,12 +40,6 @@ from sysid_msgs.msg import ModalEstimate, Notch, NotchBank
 from sysid_node import msg_convert as mc
 from sysid_node import node_params as NP
 
-ESTIMATE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
 STATUS_NAMES = {0: "tentative", 1: "tracked", 2: "lost"}
 #: Samples whose stamps measure the sample rate when neither a parameter nor the message gives it.
 RATE_SAMPLES = 20
