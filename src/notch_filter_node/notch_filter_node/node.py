@@ -132,17 +132,18 @@ class NotchFilterNode(Node):
         self.out_pub = self.create_publisher(cls, v["output_topic"], out_qos)
         self.bank_pub = self.create_publisher(NotchBank, v["bank_topic"], 10)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ModalEstimate, v["estimate_topic"], self._on_estimate,
-                                 ESTIMATE_QOS)
-        self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
+        est_sub = self.create_subscription(ModalEstimate, v["estimate_topic"],
+                                           self._on_estimate, ESTIMATE_QOS)
+        sig_sub = self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._bank_timer = self.create_timer(1.0 / v["bank_rate"], self._publish_bank_periodic)
         self._diag_timer = self.create_timer(1.0 / v["diagnostics_rate"], self._publish_diag)
         if v["sample_rate"] > 0:
             self._build(v["sample_rate"], None)
+        # the names after remapping and namespace, as `ros2 topic list` shows them
         self.get_logger().info(
-            f"filtering {v['signal_topic']} ({self.kind}) -> {v['output_topic']}, "
-            f"estimates from {v['estimate_topic']}"
+            f"filtering {sig_sub.topic_name} ({self.kind}) -> {self.out_pub.topic_name}, "
+            f"estimates from {est_sub.topic_name}, bank on {self.bank_pub.topic_name}"
         )
 
     # ---- parameters ----
@@ -331,7 +332,9 @@ class NotchFilterNode(Node):
 
     def _publish_diag(self) -> None:
         st = self.filter.status() if self.filter is not None else None
-        s = DiagnosticStatus(name="notch_filter_node: notch bank", hardware_id=self.get_name())
+        s = DiagnosticStatus(
+            name=f"{self.get_fully_qualified_name().lstrip('/')}: notch bank",
+            hardware_id=self.get_fully_qualified_name())
         if st is None:
             s.level, s.message = DiagnosticStatus.WARN, "waiting for the signal"
         elif st.fallback_active:
