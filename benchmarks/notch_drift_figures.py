@@ -43,12 +43,13 @@ sys.path.insert(0, str(REPO / "ros2_ws" / "tools"))
 
 from demo import DemoError, run_pipeline  # noqa: E402
 from demo_report import analyse  # noqa: E402
-from notch_filter_node import params as NP  # noqa: E402
-from notch_filter_node import resonance as R  # noqa: E402
-from notch_filter_node import sections as S  # noqa: E402
 from sysid_node.bag_io import write_signals  # noqa: E402
 from sysid_node.scenarios import drifting_mode  # noqa: E402
 from sysid_node.scenarios.bags import START_TIME_S  # noqa: E402
+
+from notch_filter_node import params as NP  # noqa: E402
+from notch_filter_node import resonance as R  # noqa: E402
+from notch_filter_node import sections as S  # noqa: E402
 
 MATCH = 0.05  # an estimate tracks the mode when a tracked mode is within 5 % of it
 
@@ -134,7 +135,7 @@ def figures(scn, res, params: Path, static) -> dict:
     if not rows:
         return {"error": "no /notch_bank message after the first tracked estimate"}
     t, pr, rigid, fb, tracked, state, claimed, lag, olag, age = (np.array(v, dtype=float)
-                                                                  for v in zip(*rows))
+                                                                  for v in zip(*rows, strict=True))
     ok = np.isfinite(claimed)
     f_struct = np.array(scn.modes[0].frequency_hz)
     return {

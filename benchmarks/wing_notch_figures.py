@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     fs, duration = float(truth["sample_rate_hz"]), float(truth["duration_s"])
     values = {**NP.defaults(),
-              **yaml.safe_load(CONFIG.read_text())["notch_filter_node"]["ros__parameters"]}
+              **yaml.safe_load(CONFIG.read_text())["/**/notch_filter_node"]["ros__parameters"]}
     cfg = NP.policy_config(values)
     tk, fk, zk = track(truth, BEAM)
 

@@ -57,7 +57,7 @@ def test_launch_file_runs_the_demos_parameters():
              if isinstance(n, ast.Constant) and isinstance(n.value, str)}
     assert demo.DEFAULT_PARAMS.name in names and "notch_filter_node.yaml" not in names
     doc = yaml.safe_load(demo.DEFAULT_PARAMS.read_text())
-    assert {"sysid_node", "notch_filter_node"} <= set(doc)
+    assert {"sysid_node", "notch_filter_node"} <= {str(k).split("/")[-1] for k in doc}
     data_files = (REPO / "src" / "notch_filter_node" / "setup.py").read_text()
     assert "config" in data_files and "launch" in data_files  # both installed to share/
 

@@ -195,7 +195,7 @@ class Rig:
     def diag(self, node: str) -> dict:
         for d in reversed(self.diags):
             for s in d.status:
-                if s.hardware_id == node:
+                if s.hardware_id.lstrip("/") == node:
                     vals = {kv.key: kv.value for kv in s.values}
                     vals["_level"], vals["_message"] = int.from_bytes(s.level, "little") \
                         if isinstance(s.level, bytes) else int(s.level), s.message

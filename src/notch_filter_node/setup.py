@@ -18,6 +18,7 @@ setup(
         ("share/" + package_name, ["package.xml", "README.md"]),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/layouts", glob("layouts/*")),
     ],
     install_requires=["setuptools"],
     maintainer="sysid maintainers",

@@ -36,6 +36,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from sysid_node.node import ESTIMATE_QOS  # the publisher's QoS of /modal_estimate
 
 from notch_filter_node import params as P
 from notch_filter_node import stream as ST
@@ -52,12 +53,6 @@ from sysid_msgs.msg import ModalEstimate, Notch, NotchBank
 from sysid_node import msg_convert as mc
 from sysid_node import node_params as NP
 
-ESTIMATE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
 STATUS_NAMES = {0: "tentative", 1: "tracked", 2: "lost"}
 #: Samples whose stamps measure the sample rate when neither a parameter nor the message gives it.
 RATE_SAMPLES = 20
@@ -163,15 +158,16 @@ class NotchFilterNode(Node):
         self.out_pub = self.create_publisher(cls, v["output_topic"], out_qos)
         self.bank_pub = self.create_publisher(NotchBank, v["bank_topic"], 10)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ModalEstimate, v["estimate_topic"], self._on_estimate,
-                                 ESTIMATE_QOS)
-        self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
+        est_sub = self.create_subscription(ModalEstimate, v["estimate_topic"],
+                                           self._on_estimate, ESTIMATE_QOS)
+        sig_sub = self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._bank_timer = self.create_timer(1.0 / v["bank_rate"], self._publish_bank_periodic)
         self._diag_timer = self.create_timer(1.0 / v["diagnostics_rate"], self._publish_diag)
+        # the names after remapping and namespace, as `ros2 topic list` shows them
         self.get_logger().info(
-            f"filtering {v['signal_topic']} ({self.kind}) -> {v['output_topic']}, "
-            f"estimates from {v['estimate_topic']}"
+            f"filtering {sig_sub.topic_name} ({self.kind}) -> {self.out_pub.topic_name}, "
+            f"estimates from {est_sub.topic_name}, bank on {self.bank_pub.topic_name}"
         )
 
     # ---- parameters ----
@@ -490,7 +486,9 @@ class NotchFilterNode(Node):
             self.get_logger().warning(line)
         flt = self.filter
         st = flt.status() if flt is not None else None
-        s = DiagnosticStatus(name="notch_filter_node: notch bank", hardware_id=self.get_name())
+        s = DiagnosticStatus(
+            name=f"{self.get_fully_qualified_name().lstrip('/')}: notch bank",
+            hardware_id=self.get_fully_qualified_name())
         recent = {k: n for k, n in self.events.recent(now).items() if not k.startswith("bank_")}
         short = [n for n in st.notches if n.limit] if st else []
         if st is None:

@@ -14,6 +14,7 @@ from dataclasses import fields
 from typing import Any
 
 from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
+from sysid_node.topics import topic_name_error
 
 from notch_filter_node.policy import BUDGET_PRIORITIES, PolicyConfig, check_config
 from sysid_node import node_params as NP
@@ -27,14 +28,14 @@ _p = ParamSpec  # _p(name, type, default, description, kind, lo=, hi=, choices=,
 _D = PolicyConfig()
 PARAMS: tuple[ParamSpec, ...] = (
     # -- topics and QoS (read-only) --
-    _p("signal_topic", str, "/vibration", "Topic of the signal to filter", "read_only"),
+    _p("signal_topic", str, "vibration", "Topic of the signal to filter", "read_only"),
     NP.signal_type_spec("signal_type", "signal_topic", "read_only"),
     NP.imu_axes_spec("read_only", "; the other fields are passed through"),
-    _p("output_topic", str, "/vibration_filtered",
+    _p("output_topic", str, "vibration_filtered",
        "Topic of the filtered signal (same type and header stamp as the input)", "read_only"),
-    _p("estimate_topic", str, "/modal_estimate", "Topic of sysid_msgs/ModalEstimate",
+    _p("estimate_topic", str, "modal_estimate", "Topic of sysid_msgs/ModalEstimate",
        "read_only"),
-    _p("bank_topic", str, "/notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
+    _p("bank_topic", str, "notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
     _p("qos_depth", int, 100, "History depth of the signal subscription and publisher "
        "[messages]", "read_only", lo=1, hi=100000),
     _p("output_qos", str, "reliable",
@@ -177,8 +178,10 @@ def _check_notch(name: str, value: Any) -> str:
         if not all(a.isdigit() and int(a) < MAX_CHANNELS for a in items):
             return (f"disabled_channels='{value}': use comma-separated channel indices "
                     f"0..{MAX_CHANNELS - 1}")
-    if name.endswith("_topic") and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name.endswith("_topic"):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 

@@ -82,6 +82,14 @@ def to_arrays(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> tuple[np.nd
     raise ValueError(f"unsupported signal type '{kind}'")
 
 
+def channel_names(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> list[str]:
+    """Channel names a signal message carries (``channel_names`` of SignalSample/SignalBlock,
+    the IMU axes read, e.g. ``['az']``); empty when the message names none."""
+    if kind == "Imu":
+        return list(axes)
+    return [str(n) for n in getattr(msg, "channel_names", ())]
+
+
 # ---- signals out (rclpy) ----
 def _f64(values: np.ndarray) -> array.array:
     return array.array("d", np.ascontiguousarray(values, dtype=np.float64).tobytes())

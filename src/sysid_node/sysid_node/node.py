@@ -114,13 +114,14 @@ class SysidNode(Node):
                                         "mode": "pending", "cost": math.nan,
                                         "lambda": values["forgetting_factor"], "values": values}
         self._in_flight = 0  # samples sent to the worker and not yet processed
+        self._channel_names: dict[str, list[str]] = {}
         self._start_worker(values)
         self.estimate_pub = self.create_publisher(
-            mc_estimate_type(), "/modal_estimate", ESTIMATE_QOS
+            mc_estimate_type(), "modal_estimate", ESTIMATE_QOS
         )
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.spectrum_pub = self.create_publisher(
-            ResidualSpectrum, "/residual_spectrum", 10)
+            ResidualSpectrum, "residual_spectrum", 10)
         self._subs: list = []
         self._subscribe(values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -132,11 +133,14 @@ class SysidNode(Node):
                                           daemon=True)
         self._sender.start()
         self._receiver.start()
-        mode = "output-only" if values["output_only"] or not values["input_topic"] else (
-            f"inputs from {values['input_topic']} ({values['input_type']})")
+        # the names after remapping and namespace, as `ros2 topic list` shows them
+        names = [s.topic_name for s in self._subs]
+        mode = "output-only" if len(names) < 2 else (
+            f"inputs from {names[1]} ({values['input_type']})")
         self.get_logger().info(
-            f"identifying modes from {values['output_topic']} ({values['output_type']}), {mode}; "
-            f"publishing /modal_estimate at {values['publish_rate']:g} Hz of data time"
+            f"identifying modes from {names[0]} ({values['output_type']}), {mode}; "
+            f"publishing {self.estimate_pub.topic_name} at {values['publish_rate']:g} Hz of "
+            f"data time, {self.spectrum_pub.topic_name}, /diagnostics"
         )
 
     def _start_worker(self, values: dict[str, Any]) -> None:
@@ -205,6 +209,10 @@ class SysidNode(Node):
             return
         self._arrivals[f"{stream}_messages"] += 1
         self._last_arrival = time.monotonic()
+        names = mc.channel_names(msg, kind, axes)
+        if names != self._channel_names.get(stream):  # first message, or renamed channels
+            self._channel_names[stream] = names
+            self._inbox.put(("names", stream, names))
         self._queue.append((stream, t, v))
         self._wake.set()
 
@@ -275,8 +283,9 @@ class SysidNode(Node):
         arrivals = dict(self._arrivals)
         r = self._last_record
         kv: dict[str, Any] = {
-            "output_topic": values["output_topic"],
-            "input_topic": values["input_topic"] if mode == "io" else "",
+            "output_topic": self._subs[0].topic_name if self._subs else "",
+            "input_topic": self._subs[1].topic_name if mode == "io" and len(self._subs) > 1
+            else "",
             "mode": mode,
             "sample_rate_hz": fs,
             "identification_rate_hz": st.get("id_fs", math.nan),
@@ -313,9 +322,9 @@ class SysidNode(Node):
             level, message = DiagnosticStatus.OK, "tracking"
         status = DiagnosticStatus(
             level=level,
-            name="sysid_node: identification",
+            name=f"{self.get_fully_qualified_name().lstrip('/')}: identification",
             message=message,
-            hardware_id=values["output_topic"],
+            hardware_id=self._subs[0].topic_name if self._subs else values["output_topic"],
             values=[KeyValue(key=k, value=_fmt(v)) for k, v in kv.items() if v is not None],
         )
         arr = DiagnosticArray(status=[status])

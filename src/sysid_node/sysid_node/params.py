@@ -19,6 +19,7 @@ from typing import Any
 from sysid_node import node_params as NP
 from sysid_node.decimation import auto_factor
 from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
+from sysid_node.topics import topic_name_error
 
 RATE_POLICIES = ("resample", "reject")
 #: Default upper band edge as a fraction of the sample rate (0.4 fs = 80 % of Nyquist).
@@ -101,11 +102,13 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
        unit="s"),
     # -- topics and QoS (structural: the node subscribes again) --
-    _p("output_topic", str, "/vibration", "Topic of the measured responses (outputs)",
+    _p("output_topic", str, "vibration",
+       "Topic of the measured responses (outputs); relative names follow the node's namespace",
        "structural"),
     NP.signal_type_spec("output_type", "output_topic", "structural"),
-    _p("input_topic", str, "/excitation",
-       "Topic of the measured excitation (inputs); empty = output-only", "structural"),
+    _p("input_topic", str, "excitation",
+       "Topic of the measured excitation (inputs); empty = output-only; relative names follow "
+       "the node's namespace", "structural"),
     NP.signal_type_spec("input_type", "input_topic", "structural"),
     NP.imu_axes_spec("structural"),
     _p("qos", str, "sensor_data",
@@ -134,8 +137,10 @@ def _check_sysid(name: str, value: Any) -> str:
         return check_imu_axes(value)
     if name == "block_rows" and value == 1:
         return "block_rows=1 is too small: use 0 (auto) or at least 2"
-    if name in ("output_topic", "input_topic") and value and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name == "output_topic" or (name == "input_topic" and value):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 

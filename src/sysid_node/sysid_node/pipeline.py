@@ -70,6 +70,8 @@ class Pipeline:
         self.update_samples = 0  # samples of the incoming stream
         self.last_update_cost = math.nan  # [s per sample] of the latest piece
         self.records_made = 0
+        #: channel names per stream, from the signal messages (for ResidualSpectrum.channel_name)
+        self.channel_names: dict[str, list[str]] = {"output": [], "input": []}
         self._build_ingest()
 
     # ---- construction ----
@@ -175,6 +177,19 @@ class Pipeline:
 
     def push_input(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
         self.ingest.push_input(stamps_ns, values)
+
+    def set_channel_names(self, stream: str, names: list[str]) -> None:
+        """Names of the channels of ``stream`` ('output' or 'input') as the messages give them;
+        used only to label what is published per channel (residual spectra)."""
+        self.channel_names[stream] = [str(n) for n in names]
+
+    def channel_name(self, stream: str, k: int, count: int) -> str:
+        """Name of channel ``k`` of ``count``: the message's, else ``y0``, ``y1``... (``u0``...
+        for inputs) when the messages name none or not as many."""
+        names = self.channel_names.get(stream, [])
+        if len(names) == count and names[k]:
+            return names[k]
+        return f"{'y' if stream == 'output' else 'u'}{k}"
 
     def step(self, flush: bool = False) -> list[EstimateRecord]:
         """Process what can be processed; return the records due (usually zero or one).
@@ -326,7 +341,8 @@ class Pipeline:
         sp = residual_spectrum(e, self.identification_rate)
         for k in range(e.shape[1]):
             self.spectra.append(SpectrumRecord(
-                stamp_ns, f"y{k}", sp.f, np.sqrt(sp.psd[:, k]), np.sqrt(sp.floor[:, k])))
+                stamp_ns, self.channel_name("output", k, e.shape[1]), sp.f,
+                np.sqrt(sp.psd[:, k]), np.sqrt(sp.floor[:, k])))
 
     def _record(self, stamp_ns: int) -> EstimateRecord:
         self._spectrum(stamp_ns)
@@ -487,7 +503,8 @@ def worker_main(values: dict[str, Any], inbox, outbox) -> None:
     with the message blocks the node sends.
 
     Inbox items: ``("data", [(stream, stamps, values), ...], n_samples)``,
-    ``("params", changes)``, ``("reset", None)``, ``None`` (stop). Outbox items:
+    ``("params", changes)``, ``("reset", None)``, ``("names", stream, names)``, ``None``
+    (stop). Outbox items:
     ``(records, log_lines, status, n_samples)``; the first item is ``("ready", error)``.
     """
     import queue
@@ -533,6 +550,8 @@ def worker_main(values: dict[str, Any], inbox, outbox) -> None:
                         lines.append(f"parameter change not applied: {reason}")
                 elif kind == "reset":
                     pl.reset()
+                elif kind == "names":  # ("names", stream, [channel names])
+                    pl.set_channel_names(payload, rest[0])
             except Exception as err:  # keep running on anything the data throws at us
                 lines.append(f"ERROR processing failed, estimator reset: {err!r}")
                 pl.reset()

@@ -8,10 +8,11 @@ from __future__ import annotations
 import importlib
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from sysid_node.bag_io import BagError
+from sysid_node.topics import split_ros_args
 
 
 class ToolError(RuntimeError):
@@ -50,11 +51,14 @@ def run_tool(prog: str, parse: Callable[[list[str] | None], Any], run: Callable[
              argv: list[str] | None) -> int:
     """``run(parse(argv))``; a bag or tool error, or anything unexpected, ends with one line
     ``prog: error: ...`` and exit status 1, never a traceback (``--help`` and usage errors exit as
-    argparse says)."""
+    argparse says). ROS arguments (``--ros-args ... [--]``) are taken out before parsing and kept
+    in ``args.ros_args`` for :func:`start_node`, as ``ros2 run`` passes them."""
+    own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     try:
-        args = parse(argv)
+        args = parse(own)
     except SystemExit as exit_:
         return int(exit_.code or 0)
+    args.ros_args = ros_args
     try:
         return run(args)
     except (BagError, ToolError) as err:
@@ -63,9 +67,10 @@ def run_tool(prog: str, parse: Callable[[list[str] | None], Any], run: Callable[
         return fail(prog, f"{type(err).__name__}: {err}")
 
 
-def start_node(name: str) -> tuple[Any, dict[str, bool]]:
+def start_node(name: str, ros_args: Sequence[str] = ()) -> tuple[Any, dict[str, bool]]:
     """rclpy without its own signal handlers, and a node ``name``: SIGINT and SIGTERM set
-    ``stop["flag"]`` so the tool's loop ends and it cleans up. Returns ``(node, stop)``."""
+    ``stop["flag"]`` so the tool's loop ends and it cleans up. ``ros_args`` (``--ros-args -r
+    __ns:=/left_wing ...``) apply to the node. Returns ``(node, stop)``."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -74,7 +79,7 @@ def start_node(name: str) -> tuple[Any, dict[str, bool]]:
     def on_signal(signum, frame) -> None:
         stop["flag"] = True
 
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[name, *ros_args], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     return rclpy.create_node(name), stop

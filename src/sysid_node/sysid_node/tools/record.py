@@ -1,6 +1,7 @@
 """record: write DDS topics into a rosbag2 until stopped (stand-in for ros2 bag record).
 
     ros2 run sysid_node record /modal_estimate /vibration -o out/bag [--duration 30]
+    ros2 run sysid_node record modal_estimate vibration -o out/left --ros-args -r __ns:=/left_wing
 
 Subscribes with ``raw=True`` and writes the serialized bytes it receives, so the bag is
 byte-exact. Types come from the ROS graph (``--type TOPIC=pkg/msg/Name`` overrides, and lets a
@@ -10,7 +11,9 @@ subscription, best-effort ones a best-effort subscription, others (and a ``--typ
 no publisher yet) reliable volatile. The offered QoS is stored in the bag. DDS pads serialized
 messages to a multiple of 4 bytes, so a recorded message may end in up to 3 more zero bytes
 than the one in a bag written by rosbags. Stops on SIGINT/SIGTERM or after ``--duration`` and
-closes the bag cleanly.
+closes the bag cleanly. Relative topic names are resolved in the recorder's namespace
+(``--ros-args -r __ns:=/left_wing``: ``vibration`` is ``/left_wing/vibration``); the bag holds
+the fully qualified names.
 """
 
 from __future__ import annotations
@@ -64,7 +67,10 @@ def run(args: argparse.Namespace) -> int:
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    node, stop = start_node("record")
+    node, stop = start_node("record", args.ros_args)
+    # fully qualified names (namespace and remapping applied): what the graph and the bag use
+    args.topics = list(dict.fromkeys(node.resolve_topic_name(t) for t in args.topics))
+    args.types = {node.resolve_topic_name(t): v for t, v in args.types.items()}
     bag = BagWriter(args.output, storage=args.storage).open()
     subs = {}
 
