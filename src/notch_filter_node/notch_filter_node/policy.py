@@ -5,29 +5,30 @@ the bank (:class:`~notch_filter_node.sections.SectionParams`), a status per notc
 state with its transitions.
 
 Which modes get a notch: a mode is notched once its status is ``tracked``, its frequency lies in
-``[freq_min, freq_max]``, its damping is at most ``damping_max`` and low enough that its
-resonance stands ``peak_reduction`` above its static gain, and its amplitude is at least
+``[freq_min, freq_max]``, its damping is at most ``damping_max`` and low enough that its resonance
+stands ``peak_reduction`` above its static gain, and its amplitude is at least
 ``min_relative_amplitude`` times the largest such mode's (a mode that small hardly reaches the
-feedback signal, and is often a noise mode with a wide uncertainty). When there are more such
-modes than sections, the modes that already have a notch keep it and the largest come next.
+feedback signal, and is often a noise mode with a wide uncertainty). When there are more such modes
+than sections, the modes that already have a notch keep it and the largest come next.
 
 The mode's model (frequency, damping, drift and their uncertainties) comes from its recent
-estimates (:mod:`notch_filter_node.smoothing`). Width from the resonance it must suppress (:mod:`notch_filter_node.resonance`): each notch is the
-narrowest (at ``depth``) whose peak reduction of the mode ``G = 1 / (1 - r^2 + 2 j zeta r)`` is at
-least ``peak_reduction`` for every mode in its uncertainty box: frequency ``f +- h``, ``h = sigma_k
-sigma_f + max(|drift rate| + sigma_k se, drift_rate_min f) age``, damping up to ``zeta +
-damping_sigma_k sigma_zeta`` (at most ``damping_max``), the notch sitting at its (hysteresis-held)
-centre. The drift rate is the least-squares slope of the mode's recent estimates (``drift_window``)
-with its standard error ``se``; ``age`` is the estimate's age, so a late estimate widens the notch
-by the drift the mode could have made since. A box is designed ahead, for the age plus
-``max(design_horizon, half the time since the estimate arrived)``, and re-designed when the age
-outgrows it (a few times over a long gap, not at every block). Where no notch up to
-``bandwidth_max`` reaches the requirement (a well-damped mode: its peak is less than that above its
-static gain), the notch is the narrowest within 1 dB of the best such notch, and says so. Then the
-phase budget: when the adaptive notches together lag more than ``phase_lag_budget`` at
-``crossover_frequency``, either they are narrowed by a common factor (``budget_priority:
-phase_lag``; their guaranteed peak reduction drops and each says so) or they keep their width and
-the bank says the budget is exceeded (``peak_reduction``).
+estimates (:mod:`notch_filter_node.smoothing`). Width from the resonance it must suppress
+(:mod:`notch_filter_node.resonance`): each notch is the narrowest (at ``depth``) whose peak
+reduction of the mode ``G = 1 / (1 - r^2 + 2 j zeta r)`` is at least ``peak_reduction`` for every
+mode in its uncertainty region: frequency ``f +- h``, ``h = sigma_k sigma_f + max(|drift rate| +
+sigma_k se, drift_rate_min f) age``, damping from ``zeta`` up to ``zeta + damping_sigma_k
+sigma_zeta`` (at most ``damping_max``), an ellipse, the notch sitting at its (hysteresis-held)
+centre. The drift rate is the slope of the mode's recent estimates (``drift_window``) with its
+standard error ``se``;
+``age`` is the estimate's age, so a late estimate widens the notch by the drift the mode could have
+made since. A box is designed ahead, for the age plus ``max(design_horizon, half the time since the
+estimate arrived)``, and re-designed when the age outgrows it (a few times over a long gap, not at
+every block). Where no notch up to ``bandwidth_max`` reaches the requirement (a well-damped mode:
+its peak is less than that above its static gain), the notch is the narrowest within 1 dB of the
+best such notch, and says so. Then the phase budget: when the adaptive notches together lag more
+than ``phase_lag_budget`` at ``crossover_frequency``, either they are narrowed by a common factor
+(``budget_priority: phase_lag``; their guaranteed peak reduction drops and each says so) or they
+keep their width and the bank says the budget is exceeded (``peak_reduction``).
 
 Bank states (sysid_msgs/NotchBank), in order of degradation:
 
