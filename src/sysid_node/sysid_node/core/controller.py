@@ -28,6 +28,7 @@ import control as ct
 import numpy as np
 
 from .inputs import InputError, as_2d
+from .loop_analysis import crossings
 from .lti import simulate_discrete
 
 
@@ -144,8 +145,9 @@ def input_loop_margins(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Loop-at-a-time gain [dB] and phase [deg] margins at each plant input, the other loops
     closed (MIMO disk margins need slycot). With H = K G and positive feedback, the return
-    ratio at input i is L_i = 1 - 1 / [(I - H)^-1]_ii; python-control's ``stability_margins``
-    on its frequency response (dense grid up to Nyquist) gives every crossing. A lightly damped
+    ratio at input i is L_i = 1 - 1 / [(I - H)^-1]_ii, from python-control's frequency response
+    of (I - H)^-1 on a dense grid up to Nyquist; every crossing by
+    :func:`~sysid_node.core.loop_analysis.crossings`. A lightly damped
     structure crosses unity gain near each resonance and an open-loop unstable plant makes the
     loop conditionally stable (a gain *decrease* destabilises it), so the margin is the
     smallest distance to instability over all crossings, in either direction: min |GM| [dB]
@@ -161,16 +163,12 @@ def input_loop_margins(
     pm = np.full(m, np.inf)
     for i in range(m):
         li = 1.0 - 1.0 / fr[i, i]
-        # python-control's margins are for negative feedback: L_neg = -L_i
-        g, p, *_ = ct.stability_margins(ct.frd(-li, omega, dt=plant.dt), returnall=True)
-        g = np.asarray(g, dtype=float)
-        g = g[np.isfinite(g) & (g > 0)]
-        p = np.asarray(p, dtype=float)
-        p = p[np.isfinite(p)]
+        # crossings() takes a negative-feedback loop: L_neg = -L_i
+        g, p, _ = crossings(omega, -li)
         if g.size:
-            gm[i] = float(np.min(np.abs(20 * np.log10(g))))
+            gm[i] = float(np.min(np.abs(g)))
         if p.size:
-            pm[i] = float(np.min(np.abs((p + 180.0) % 360.0 - 180.0)))
+            pm[i] = float(np.min(np.abs(p)))
     return gm, pm
 
 
