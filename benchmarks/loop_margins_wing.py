@@ -81,8 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     truth = json.loads(args.bag.with_name(args.bag.name + ".truth.json").read_text())
     fs, duration = float(truth["sample_rate_hz"]), float(truth["duration_s"])
     est = estimates(args.bag, float(truth["start_time_s"]))
-    values = {**NP.defaults(),
-              **yaml.safe_load(CONFIG.read_text())["notch_filter_node"]["ros__parameters"]}
+    doc = yaml.safe_load(CONFIG.read_text())
+    section = next(v for k, v in doc.items() if k.endswith("notch_filter_node"))  # "/**/..."
+    values = {**NP.defaults(), **section["ros__parameters"]}
     cfg = NP.policy_config(values)
     tk, fk = true_track(truth, "symmetric_wing_beam")
     swb = next(m for m in truth["modes"] if m["name"] == "symmetric_wing_beam")

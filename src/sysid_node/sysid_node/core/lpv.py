@@ -25,7 +25,9 @@ therefore brought to one **real modal basis, consistently ordered and normalised
 
 File format (:meth:`LpvModel.save`, ``.npz``): arrays ``points`` (P,) [scheduling unit],
 ``A`` (P, n, n) [1/s], ``B`` (P, n, m), ``C`` (P, l, n), ``D`` (P, l, m), ``kind`` (n,) (0 for
-the first state of a complex block, 1 for its second, 2 for a real pole) and ``meta`` (JSON:
+the first state of a complex block, 1 for its second, 2 for a real pole), optionally
+``frequency_std`` [Hz] and ``damping_std`` (P, modes) (the identified standard deviations, NaN
+unknown) and ``meta`` (JSON:
 format "sysid_lpv", version, scheduling name and unit, the basis and the interpolation in words,
 number of modes, sample rate of the identification, free text ``source``).
 """
@@ -156,6 +158,8 @@ class LpvModel:
     C: np.ndarray  # (P, l, n)
     D: np.ndarray  # (P, l, m)
     kind: np.ndarray  # (n,) 0/1 complex block, 2 real
+    frequency_std: np.ndarray | None = None  # (P, modes) identified std [Hz], NaN unknown
+    damping_std: np.ndarray | None = None  # (P, modes) [-]
     scheduling: str = "theta"
     unit: str = ""
     fs: float = float("nan")  # sample rate of the identification [Hz] (information)
@@ -203,9 +207,25 @@ class LpvModel:
 
     @classmethod
     def from_models(cls, points, models: list[IdentifiedModel], **kw) -> LpvModel:
-        """From identified discrete models (deterministic part, ZOH inverse to continuous)."""
+        """From identified discrete models (deterministic part, ZOH inverse to continuous);
+        the modes' identified standard deviations are kept per point (NaN where unknown)."""
         kw.setdefault("fs", float(models[0].fs) if models else float("nan"))
-        return cls.from_systems(points, [m.to_continuous() for m in models], **kw)
+        lpv = cls.from_systems(points, [m.to_continuous() for m in models], **kw)
+        order = np.argsort(np.asarray(points, dtype=float))
+        f_std = np.full((lpv.points.size, lpv.n_modes), np.nan)
+        z_std = np.full_like(f_std, np.nan)
+        f_p, z_p = lpv.modes(lpv.points)
+        for row, i in enumerate(order):
+            for k in range(lpv.n_modes):
+                cand = [md for md in models[i].modes if np.isfinite(md.frequency_std_hz)]
+                if not cand:
+                    continue
+                md = min(cand, key=lambda x: abs(x.frequency_hz - f_p[row, k])
+                         + abs(x.damping_ratio - z_p[row, k]) * f_p[row, k])
+                if abs(md.frequency_hz / f_p[row, k] - 1) < 1e-3:
+                    f_std[row, k], z_std[row, k] = md.frequency_std_hz, md.damping_std
+        lpv.frequency_std, lpv.damping_std = f_std, z_std
+        return lpv
 
     # ------------------------------------------------------------------ evaluation
     @property
@@ -232,6 +252,15 @@ class LpvModel:
         rad = np.abs(s)
         return rad / (2 * np.pi), -s.real / np.maximum(rad, 1e-300)
 
+    def mode_std(self, theta: float) -> tuple[np.ndarray, np.ndarray]:
+        """Interpolated identification standard deviations (frequency [Hz], damping) of the
+        modes at ``theta`` (NaN when the local models did not carry them)."""
+        if self.frequency_std is None or self.damping_std is None:
+            nan = np.full(self.n_modes, np.nan)
+            return nan, nan.copy()
+        w = interpolation_weights(theta, self.points)[0]
+        return w @ self.frequency_std, w @ self.damping_std
+
     def shapes(self, theta: float) -> np.ndarray:
         """Predicted complex output shapes (l, modes) at ``theta`` (C v, unit norm)."""
         c = self.at(theta).C
@@ -249,8 +278,10 @@ class LpvModel:
             "fs_identification_hz": self.fs, "source": self.source, **self.meta,
         }
         with open(path, "wb") as fh:
+            extra = ({} if self.frequency_std is None else
+                     {"frequency_std": self.frequency_std, "damping_std": self.damping_std})
             np.savez(fh, points=self.points, A=self.A, B=self.B, C=self.C, D=self.D,
-                     kind=self.kind, meta=np.array(json.dumps(meta)))
+                     kind=self.kind, meta=np.array(json.dumps(meta)), **extra)
 
     @classmethod
     def load(cls, path: str | Path) -> LpvModel:
@@ -259,6 +290,8 @@ class LpvModel:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(str(z["meta"]))
                 arrays = {k: np.array(z[k]) for k in ("points", "A", "B", "C", "D", "kind")}
+                for k in ("frequency_std", "damping_std"):
+                    arrays[k] = np.array(z[k]) if k in z.files else None
         except (OSError, KeyError, ValueError) as exc:
             raise InputError(f"cannot load LPV model from {path}: {exc}") from None
         if meta.get("format") != LPV_FORMAT:
