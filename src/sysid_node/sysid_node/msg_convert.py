@@ -82,6 +82,43 @@ def to_arrays(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> tuple[np.nd
     raise ValueError(f"unsupported signal type '{kind}'")
 
 
+def signal_samples_to_arrays(msgs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Many SignalSample messages of one channel count -> stamps ``(n,)`` [ns], values
+    ``(n, channels)``, without a Python loop over the values (ValueError if the counts
+    differ)."""
+    n = len(msgs)
+    stamps = np.fromiter(
+        (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in msgs),
+        dtype=np.int64, count=n)
+    width = len(msgs[0].values)
+    if any(len(m.values) != width for m in msgs):
+        raise ValueError("channel counts differ")
+    if width == 0:
+        return stamps, np.empty((n, 0))
+    data = b"".join(memoryview(m.values).cast("B") if isinstance(m.values, array.array)
+                    else np.asarray(m.values, dtype=np.float64).tobytes() for m in msgs)
+    return stamps, np.frombuffer(data, dtype=np.float64).reshape(n, width).copy()
+
+
+def burst_to_blocks(
+    msgs: Sequence[Any], kind: str, axes: Sequence[str] = ("az",)
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[str]]:
+    """A burst of messages of one topic -> blocks ``(stamps, values)`` (consecutive messages of
+    equal channel count stacked) and one reason per unreadable message."""
+    if kind == "SignalSample" and msgs:
+        try:
+            return [signal_samples_to_arrays(msgs)], []
+        except (ValueError, TypeError, AttributeError):
+            pass  # mixed channel counts or a malformed message: one at a time below
+    blocks, errors = [], []
+    for m in msgs:
+        try:
+            blocks.append(to_arrays(m, kind, axes))
+        except (ValueError, TypeError, AttributeError) as err:
+            errors.append(str(err))
+    return stack_blocks(blocks), errors
+
+
 def stack_blocks(
     blocks: Iterable[tuple[np.ndarray, np.ndarray]],
 ) -> list[tuple[np.ndarray, np.ndarray]]:
