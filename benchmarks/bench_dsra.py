@@ -37,13 +37,11 @@ from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
 from sysid_node.core import RecursiveDSRA, identify  # noqa: E402
-from sysid_node.core.systems import (  # noqa: E402
-    ContinuousSystem,
-    add_output_noise,
-    paper_example_systems,
-    simulate,
-    wideband_input,
-)
+from sysid_node.core.lti import ContinuousSystem, simulate  # noqa: E402
+from sysid_node.scenarios.excitations import white  # noqa: E402
+from sysid_node.scenarios.noise import add_output_noise  # noqa: E402
+from sysid_node.scenarios.paper import paper_example_systems  # noqa: E402
+from sysid_node.scenarios.structures import modal_system  # noqa: E402
 
 REALIZATION_RATE_HZ = 20.0
 BLOCK_ROWS = 20
@@ -59,28 +57,17 @@ class Case:
     max_modes: int
 
 
-def modal_system(freqs: list[float], zetas: list[float], shapes: np.ndarray) -> ContinuousSystem:
-    """Lightly damped modes (``freqs`` [Hz], damping ``zetas``), one input driving all of
-    them, velocity-like outputs with mode shapes ``shapes`` (outputs x modes)."""
-    n = 2 * len(freqs)
-    a = np.zeros((n, n))
-    for k, (f, z) in enumerate(zip(freqs, zetas, strict=True)):
-        w = 2 * np.pi * f
-        a[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = [[0.0, 1.0], [-w * w, -2 * z * w]]
-    b = np.zeros((n, 1))
-    b[1::2, 0] = 1.0
-    c = np.zeros((shapes.shape[0], n))
-    c[:, 1::2] = shapes
-    return ContinuousSystem(a, b, c, np.zeros((shapes.shape[0], 1)))
-
-
 def cases() -> list[Case]:
     _, paper = paper_example_systems()
-    rotor = modal_system([47.0, 95.0, 142.0, 210.0], [0.02, 0.015, 0.02, 0.01], np.ones((1, 4)))
+    # lightly damped modes, one input driving all of them, velocity sensors
+    rotor = modal_system([47.0, 95.0, 142.0, 210.0], [0.02, 0.015, 0.02, 0.01], np.ones((4, 1)),
+                         np.ones((1, 4)), output="velocity")
     wing = modal_system(
         [2.8, 7.1, 12.5, 23.1, 36.6],
         [0.02, 0.015, 0.02, 0.01, 0.012],
+        np.ones((5, 1)),
         np.random.default_rng(7).normal(size=(6, 5)),
+        output="velocity",
     )
     return [
         Case("SISO i=20 @100 Hz (paper Sec. II)", paper, 100.0, 0.99, (0.0, 10.0), 5),
@@ -92,7 +79,7 @@ def cases() -> list[Case]:
 def data(case: Case, seconds: float) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(0)
     n = int(round(seconds * case.fs))
-    u = wideband_input(n, case.system.n_inputs, rng)
+    u = white(n, case.system.n_inputs, rng)
     y = add_output_noise(simulate(case.system, u, case.fs), 0.05, rng)
     return u, y
 

@@ -72,7 +72,7 @@ class Client(DdsClient):
 
 
 def estimate(stamp_ns: int):
-    from sysid_node.pipeline import EstimateRecord, ModeRecord
+    from sysid_node.records import EstimateRecord, ModeRecord
 
     from sysid_node import msg_convert as mc
 

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 from sysid_node.core import RecursiveDSRA, identify
-from sysid_node.core.systems import cobra_example_data
+from sysid_node.scenarios.paper import cobra_example_data
 
 FS = 256.0
 DAMPING = (-0.01, 0.5)

@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 from sysid_node.core import SEED_EXAMPLE_SETTINGS, ModeTracker, RecursiveDSRA
-from sysid_node.core.systems import paper_example_data, paper_example_systems
+from sysid_node.scenarios.paper import paper_example_data, paper_example_systems
 
 
 def _run(seed: int) -> list[tuple[float, list]]:

@@ -55,7 +55,7 @@ def paper_bag(tmp_path_factory) -> Path:
     """bags/paper_example when shipped, else the same scenario written here."""
     if (SHIPPED_BAG / "metadata.yaml").is_file():
         return SHIPPED_BAG
-    from sysid_node.core.systems import paper_example_data
+    from sysid_node.scenarios.paper import paper_example_data
 
     t, u, y = paper_example_data(duration_s=40.0, fs=100.0, seed=0)
     t = t + 1_700_000_000.0
@@ -67,7 +67,7 @@ def paper_bag(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def short_bag(tmp_path_factory) -> Path:
     """8 s of the paper example (for the command-line tests)."""
-    from sysid_node.core.systems import paper_example_data
+    from sysid_node.scenarios.paper import paper_example_data
 
     t, u, y = paper_example_data(duration_s=8.0, fs=100.0, seed=2)
     t = t + 1_700_000_000.0

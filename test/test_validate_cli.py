@@ -104,3 +104,22 @@ def test_unknown_effect_one_line(capsys):
 
 def test_bad_option_one_line(capsys):
     assert "--split" in _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--split", "x")
+
+
+def test_report_under_a_regular_file_one_line(capsys, tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    msg = _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--report", str(f / "r.html"))
+    assert "--report" in msg and "not a directory" in msg
+
+
+def test_json_onto_a_directory_one_line(capsys, tmp_path):
+    msg = _one_line_error(capsys, "--bag", str(BAGS / "clean"), "--json", str(tmp_path))
+    assert "--json" in msg and "directory" in msg
+
+
+def test_output_in_a_missing_directory_one_line(capsys, tmp_path):
+    msg = _one_line_error(
+        capsys, "--bag", str(BAGS / "clean"), "--save-model", str(tmp_path / "no" / "m.npz")
+    )
+    assert "does not exist" in msg

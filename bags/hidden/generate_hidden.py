@@ -5,7 +5,7 @@ Usage: ros2_ws/env python bags/hidden/generate_hidden.py [--out bags/hidden] [--
 
 Each bag holds /vibration and /excitation (sysid_msgs/SignalSample, 50 Hz) and the slow
 candidate signals of its scenario (/airspeed, /rotor_speed at 10 Hz); see
-sysid_node.validation.hidden_effects for what is hidden in each. The nominal model is the
+sysid_node.scenarios.bags (hidden_effect) for what is hidden in each. The nominal model is the
 2-mode structure of Sec. II: validate them with ``--order 4``.
 """
 
@@ -17,9 +17,7 @@ import sys
 from pathlib import Path
 
 from sysid_node.bag_io import write_signals
-from sysid_node.validation.hidden_effects import SCENARIOS, make
-
-SEEDS = {name: 100 + k for k, name in enumerate(SCENARIOS)}
+from sysid_node.scenarios.bags import HIDDEN_SCENARIOS, HIDDEN_SEEDS, hidden_effect
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,14 +27,14 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    for name in SCENARIOS:
+    for name in HIDDEN_SCENARIOS:
         path = out / name
         if path.exists():
             if not args.force:
                 print(f"{path} exists (use --force)")
                 continue
             shutil.rmtree(path)
-        sc = make(name, seed=SEEDS[name])
+        sc = hidden_effect(name, seed=HIDDEN_SEEDS[name])
         topics = {"/vibration": (sc.t, sc.y, ["y0"]), "/excitation": (sc.t, sc.u, ["u0"])}
         for topic, (ts, v) in sc.signals.items():
             topics[topic] = (ts, v[:, None], [topic.strip("/")])

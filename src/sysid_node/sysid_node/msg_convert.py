@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import array
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from sysid_node.pipeline import EstimateRecord, ModeRecord, SpectrumRecord
+from sysid_node.records import EstimateRecord, ModeRecord, SpectrumRecord, stack_blocks
 
 STATUS_CODES = {"tentative": 0, "tracked": 1, "lost": 2}
 IMU_FIELDS = {
@@ -117,27 +117,6 @@ def burst_to_blocks(
         except (ValueError, TypeError, AttributeError) as err:
             errors.append(str(err))
     return stack_blocks(blocks), errors
-
-
-def stack_blocks(
-    blocks: Iterable[tuple[np.ndarray, np.ndarray]],
-) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Concatenate consecutive blocks with the same channel count (arrival order is kept), so
-    that many one-sample messages become one block for the vectorised ingest."""
-    out: list[tuple[np.ndarray, np.ndarray]] = []
-    run_t: list[np.ndarray] = []
-    run_v: list[np.ndarray] = []
-    width = None
-    for t, v in blocks:
-        if width is not None and v.shape[1] != width:
-            out.append((np.concatenate(run_t), np.concatenate(run_v)))
-            run_t, run_v = [], []
-        width = v.shape[1]
-        run_t.append(t)
-        run_v.append(v)
-    if run_t:
-        out.append((np.concatenate(run_t), np.concatenate(run_v)))
-    return out
 
 
 # ---- signals out (rclpy) ----

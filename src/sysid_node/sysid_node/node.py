@@ -44,7 +44,7 @@ from sysid_node import diagnostics as D
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
 from sysid_node.log_throttle import LogThrottle
-from sysid_node.pipeline import EstimateRecord
+from sysid_node.records import EstimateRecord
 from sysid_node.worker import STALL_S, WorkerLink
 
 ESTIMATE_QOS = QoSProfile(

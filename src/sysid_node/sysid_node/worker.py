@@ -138,26 +138,6 @@ def worker_main(values: dict[str, Any], inbox: Any, outbox: Any) -> None:
         lines.clear()
 
 
-def _stack(blocks: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Consecutive blocks of equal channel count as one (arrival order kept)."""
-    out: list[tuple[np.ndarray, np.ndarray]] = []
-    run: list[tuple[np.ndarray, np.ndarray]] = []
-    for t, v in blocks:
-        if run and v.shape[1] != run[-1][1].shape[1]:
-            out.append(_cat(run))
-            run = []
-        run.append((t, v))
-    if run:
-        out.append(_cat(run))
-    return out
-
-
-def _cat(run: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    if len(run) == 1:
-        return run[0]
-    return np.concatenate([t for t, _ in run]), np.concatenate([v for _, v in run])
-
-
 @dataclass
 class _Pending:
     stream: str
@@ -287,7 +267,7 @@ class WorkerLink:
             self._sent_ns[batch_id] = time.time_ns()
             self.stages.add("waiting", time.monotonic() - items[0].arrived)
         blocks = [(s, t, v) for s in ("output", "input")
-                  for t, v in _stack([(p.stamps, p.values) for p in items if p.stream == s])]
+                  for t, v in stack_blocks([(p.stamps, p.values) for p in items if p.stream == s])]
         realize_from = None
         if held and self.newest_ns is not None:  # gathered while the worker was busy: behind
             keep = max(CATCH_UP_KEEP_S, 1.0 / float(self.values.get("publish_rate", 10.0)))

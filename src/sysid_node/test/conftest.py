@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from sysid_node.core import SEED_EXAMPLE_SETTINGS, ModeTracker, RecursiveDSRA
-from sysid_node.core.systems import (
+from sysid_node.scenarios.paper import (
     PAPER_EXAMPLE_SWITCH_TIME_S,
     cobra_example_data,
     paper_example_data,

@@ -4,13 +4,10 @@ eigen-analysis of the true system; model methods; order selection; stabilization
 import numpy as np
 import pytest
 from sysid_node.core import IdentifiedModel, InputError, identify, stabilization_diagram
-from sysid_node.core.systems import (
-    ContinuousSystem,
-    add_output_noise,
-    cobra_stick_model,
-    simulate,
-    wideband_input,
-)
+from sysid_node.core.lti import ContinuousSystem, simulate
+from sysid_node.scenarios.excitations import white
+from sysid_node.scenarios.noise import add_output_noise
+from sysid_node.scenarios.paper import cobra_stick_model
 
 FS = 256.0
 WIDE_DAMPING = (-0.01, 0.5)  # the 31.8 Hz mode of the CSM is undamped (zeta = 0)
@@ -97,7 +94,7 @@ def test_mimo_two_inputs_six_outputs():
     rng = np.random.default_rng(11)
     c6 = rng.standard_normal((6, 6)) * 300.0
     system = ContinuousSystem(csm.A, csm.B, c6, np.zeros((6, 2)))
-    u = wideband_input(int(30 * FS), 2, rng)
+    u = white(int(30 * FS), 2, rng)
     y = add_output_noise(simulate(system, u, FS), 0.05, rng)
     model = identify(y, u, fs=FS, order=6, block_rows=10, damping_bounds=WIDE_DAMPING)
     assert (model.n_inputs, model.n_outputs) == (2, 6)

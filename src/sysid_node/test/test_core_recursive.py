@@ -4,14 +4,10 @@ batch algorithm, any block length, numerical soundness over an hour at lambda = 
 import numpy as np
 import pytest
 from sysid_node.core import InputError, RecursiveDSRA, identify
-from sysid_node.core.systems import (
-    ContinuousSystem,
-    add_output_noise,
-    cobra_stick_model,
-    paper_example_systems,
-    simulate,
-    wideband_input,
-)
+from sysid_node.core.lti import ContinuousSystem, simulate
+from sysid_node.scenarios.excitations import white
+from sysid_node.scenarios.noise import add_output_noise
+from sysid_node.scenarios.paper import cobra_stick_model, paper_example_systems
 
 FS = 256.0
 WIDE_DAMPING = (-0.01, 0.5)
@@ -92,7 +88,7 @@ def test_recursive_with_unit_lambda_agrees_with_batch(cobra_data):
 def test_block_length_does_not_change_the_estimate():
     rng = np.random.default_rng(5)
     before, _ = paper_example_systems()
-    u = wideband_input(600, 1, rng)
+    u = white(600, 1, rng)
     y = add_output_noise(simulate(before, u, 100.0), 0.05, rng)
     kw = dict(fs=100.0, block_rows=10, max_order=4, realization_interval=50, band=(0, 10))
     a, b = RecursiveDSRA(1, 1, **kw), RecursiveDSRA(1, 1, **kw)
@@ -108,7 +104,7 @@ def test_mimo_two_inputs_six_outputs_recursive():
     csm = cobra_stick_model()
     rng = np.random.default_rng(11)
     system = ContinuousSystem(csm.A, csm.B, rng.standard_normal((6, 6)) * 300.0, np.zeros((6, 2)))
-    u = wideband_input(int(20 * FS), 2, rng)
+    u = white(int(20 * FS), 2, rng)
     y = add_output_noise(simulate(system, u, FS), 0.05, rng)
     est = RecursiveDSRA(
         6,
@@ -135,7 +131,7 @@ def test_hour_at_lambda_095_with_dead_and_poor_excitation_stays_sound():
     fs, minute = 100.0, 6000
     before, _ = paper_example_systems()
     rng = np.random.default_rng(9)
-    u1 = wideband_input(10 * minute, 1, rng)
+    u1 = white(10 * minute, 1, rng)
     y1 = add_output_noise(simulate(before, u1, fs), 0.05, rng)
     noise_std = 0.05 * y1.std()
     u = np.vstack([u1, np.zeros((40 * minute, 1)), u1])
@@ -180,7 +176,7 @@ def test_hour_at_lambda_095_with_dead_and_poor_excitation_stays_sound():
 def test_nonfinite_samples_are_skipped_and_counted():
     rng = np.random.default_rng(4)
     before, _ = paper_example_systems()
-    u = wideband_input(3000, 1, rng)
+    u = white(3000, 1, rng)
     y = add_output_noise(simulate(before, u, 100.0), 0.05, rng)
     y[1000:1003] = np.nan
     u[2000] = np.inf
@@ -195,7 +191,7 @@ def test_nonfinite_samples_are_skipped_and_counted():
 def test_status_and_live_configuration():
     rng = np.random.default_rng(6)
     before, _ = paper_example_systems()
-    u = wideband_input(2000, 1, rng)
+    u = white(2000, 1, rng)
     y = add_output_noise(simulate(before, u, 100.0), 0.05, rng)
     est = RecursiveDSRA(1, 1, fs=100.0, block_rows=20, max_order=4, realization_interval=100)
     assert np.all(np.isnan(est.prediction_error_rms)) and est.modes() == [] and not est.converged

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sysid_node.core.systems import paper_example_systems
+from sysid_node.scenarios.paper import paper_example_systems
 
 _, AFTER = paper_example_systems()
 TRUE = AFTER.modes()  # [(f, zeta)] for 2, 4, 6 Hz from the eigen-analysis

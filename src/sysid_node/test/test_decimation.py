@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from sysid_node.core.systems import paper_example_systems, simulate_switching
 from sysid_node.decimation import Decimator, auto_factor
 from sysid_node.pipeline import Pipeline
+from sysid_node.scenarios.paper import paper_example_systems
+from sysid_node.scenarios.timevarying import simulate_switching
 
 from sysid_node import params as P
 

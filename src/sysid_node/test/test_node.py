@@ -2,7 +2,7 @@
 services, bad input sent to the running node, clean shutdown.
 
 The node runs as ``ros2_ws/run sysid_node sysid_node ...`` in its own process group; this test
-talks to it through an rclpy node of its own. Data: the paper's Sec. II example (core/systems),
+talks to it through an rclpy node of its own. Data: the paper's Sec. II example (scenarios/paper),
 sent as ``SignalBlock`` messages faster than real time (the node works in data time).
 """
 
@@ -23,7 +23,7 @@ rclpy = pytest.importorskip("rclpy")
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters  # noqa: E402
-from sysid_node.core.systems import paper_example_data  # noqa: E402
+from sysid_node.scenarios.paper import paper_example_data  # noqa: E402
 
 from sysid_node import msg_convert as mc  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The node's processing (pipeline.py) on the paper's Sec. II example, simulated by core/systems.
+"""The node's processing (pipeline.py) on the paper's Sec. II example, simulated by scenarios/paper.
 
 Checks the accuracy of the core through the pipeline (2 and 4 Hz within 2 % by 2 s, 6 Hz within
 1.5 s of appearing at 20 s), that message chunking does not change a single number (what makes
@@ -11,8 +11,9 @@ import math
 
 import numpy as np
 import pytest
-from sysid_node.core.systems import paper_example_data
-from sysid_node.pipeline import EstimateRecord, Pipeline
+from sysid_node.pipeline import Pipeline
+from sysid_node.records import EstimateRecord
+from sysid_node.scenarios.paper import paper_example_data
 
 T0 = 1_700_000_000 * 10**9
 FS = 100.0
@@ -172,7 +173,7 @@ def test_signal_block_and_imu_to_arrays():
 
 
 def test_estimate_round_trip_through_cdr():
-    from sysid_node.pipeline import ModeRecord
+    from sysid_node.records import ModeRecord
 
     from sysid_node import msg_convert as mc
 

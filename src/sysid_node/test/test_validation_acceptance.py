@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from sysid_node.scenarios.bags import HIDDEN_SEEDS as SEEDS
+from sysid_node.scenarios.bags import hidden_effect as make
+from sysid_node.scenarios.bags import hidden_lpv_frequency as lpv_frequency
 from sysid_node.tools.validate import build_parser, run
-from sysid_node.validation.hidden_effects import SCENARIOS, lpv_frequency, make
 
 BAGS = Path(__file__).resolve().parents[3] / "bags" / "hidden"
 EFFECT_BAGS = [
@@ -18,7 +20,6 @@ EFFECT_BAGS = [
     "sensor_bias",
     "feedback",
 ]
-SEEDS = {name: 100 + k for k, name in enumerate(SCENARIOS)}  # as in bags/hidden/generate_hidden.py
 
 
 @pytest.fixture(scope="module")

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sysid_node.scenarios.bags import hidden_effect as make
 from sysid_node.validation import residuals as rs
 from sysid_node.validation.augment import ModelSpec, modal_form
 from sysid_node.validation.data import ValidationError
-from sysid_node.validation.hidden_effects import make
 
 FS = 50.0
 

@@ -1,5 +1,5 @@
 """Pure DSRA numerics (no rclpy): batch and recursive subspace identification, modal
-extraction, mode tracking, and the seed paper's test systems. See the package README."""
+extraction, mode tracking, LTI simulation. See the package README."""
 
 from .batch import identify
 from .inputs import InputError

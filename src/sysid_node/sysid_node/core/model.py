@@ -10,8 +10,8 @@ import numpy as np
 from scipy import linalg
 
 from .inputs import InputError, as_2d
+from .lti import ContinuousSystem, simulate_discrete
 from .modal import ModalParameters
-from .systems import ContinuousSystem, simulate_discrete
 
 _ARRAYS = (
     "A",

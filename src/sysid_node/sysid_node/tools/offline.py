@@ -26,7 +26,8 @@ import numpy as np
 
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
-from sysid_node.pipeline import EstimateRecord, Pipeline
+from sysid_node.pipeline import Pipeline
+from sysid_node.records import EstimateRecord, stack_blocks
 
 NODE_NAME = "sysid_node"
 ESTIMATE_TOPIC = "/modal_estimate"
@@ -180,7 +181,7 @@ def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
     for stream in ("output", "input"):
         blocks = [(t, v) for s, t, v in batch if s == stream]
         push = pipeline.push_output if stream == "output" else pipeline.push_input
-        for t, v in mc.stack_blocks(blocks):
+        for t, v in stack_blocks(blocks):
             push(t, v)
     records = pipeline.step()
     pipeline.pop_spectra()  # /residual_spectrum is a live view; the offline outputs omit it

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -133,8 +135,39 @@ def _row(label: str, a: Assessment) -> str:
     )
 
 
+def check_output_path(path: str | None, flag: str) -> None:
+    """Refuse an output file that cannot be written, before any work (one-line reason)."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise ValidationError(f"{flag} {path} is a directory, not a file")
+    parent = p.parent
+    existing = next(a for a in (parent, *parent.parents) if a.exists())
+    if not existing.is_dir():
+        raise ValidationError(f"{flag} {path}: {existing} is a file, not a directory")
+    if existing != parent:
+        raise ValidationError(f"{flag} {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ValidationError(f"{flag} {path}: directory {parent} is not writable")
+
+
+def _write_text(path: str, text: str, flag: str) -> None:
+    try:
+        with open(path, "w") as fh:
+            fh.write(text)
+    except OSError as err:
+        raise ValidationError(f"{flag} {path}: cannot write ({err.strerror})") from None
+
+
 def run(args: argparse.Namespace) -> dict:
     adds = [parse_add(text) for text in args.add]  # refuse a bad --add before any work
+    for path, flag in (
+        (args.report, "--report"),
+        (args.json, "--json"),
+        (args.save_model, "--save-model"),
+    ):
+        check_output_path(path, flag)
     data = load_bag(
         args.bag,
         output_topic=args.output,
@@ -209,14 +242,23 @@ def run(args: argparse.Namespace) -> dict:
     if args.save_model:
         if current.model is None:
             raise ValidationError("--save-model: the final structure is not a single DSRA model")
-        current.model.save(args.save_model)
+        try:
+            current.model.save(args.save_model)
+        except OSError as err:
+            raise ValidationError(
+                f"--save-model {args.save_model}: cannot write ({err.strerror})"
+            ) from None
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(_jsonable(result), fh, indent=1)
+        _write_text(args.json, json.dumps(_jsonable(result), indent=1), "--json")
     if args.report:
         from ..validation.report import write_report
 
-        write_report(args.report, data, n_est, base, before, current, cur_a, hyps, added)
+        try:
+            write_report(args.report, data, n_est, base, before, current, cur_a, hyps, added)
+        except OSError as err:
+            raise ValidationError(
+                f"--report {args.report}: cannot write ({err.strerror})"
+            ) from None
     return result
 
 

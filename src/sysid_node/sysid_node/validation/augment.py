@@ -31,8 +31,8 @@ import numpy as np
 
 from ..core.batch import identify
 from ..core.inputs import InputError
+from ..core.lti import simulate_discrete
 from ..core.model import IdentifiedModel
-from ..core.systems import simulate_discrete
 from .data import ValidationData, ValidationError
 
 EFFECTS = (

@@ -1,16 +1,20 @@
-"""The paper's systems and the vectorised simulator against independent references."""
+"""The paper's systems (scenarios.paper) and the vectorised simulator (core.lti,
+scenarios.timevarying) against independent references."""
 
 import numpy as np
+import pytest
 from scipy import signal
-from sysid_node.core.systems import (
-    add_output_noise,
+from sysid_node.core.lti import discretize, simulate
+from sysid_node.scenarios.excitations import white
+from sysid_node.scenarios.noise import add_output_noise
+from sysid_node.scenarios.paper import (
+    COBRA_ROTOR_MODE_TABLE2,
+    cobra_stick_at,
     cobra_stick_model,
-    discretize,
     paper_example_systems,
-    simulate,
-    simulate_switching,
-    wideband_input,
+    paper_example_truth,
 )
+from sysid_node.scenarios.timevarying import simulate_switching
 
 
 def test_paper_example_modes_are_2_4_6_hz():
@@ -31,7 +35,7 @@ def test_cobra_stick_model_frequencies():
 def test_simulate_matches_scipy_dlsim_with_initial_state():
     csm = cobra_stick_model()
     rng = np.random.default_rng(1)
-    u = wideband_input(3000, 2, rng)
+    u = white(3000, 2, rng)
     x0 = rng.standard_normal(6)
     ad, bd, cd, dd = discretize(csm, 256.0)
     _, y_ref, _ = signal.dlsim((ad, bd, cd, dd, 1 / 256.0), u, x0=x0)
@@ -42,7 +46,7 @@ def test_simulate_matches_scipy_dlsim_with_initial_state():
 def test_switching_carries_state_and_new_mode_starts_at_rest():
     before, after = paper_example_systems()
     rng = np.random.default_rng(2)
-    u = wideband_input(400, 1, rng)
+    u = white(400, 1, rng)
     y = simulate_switching([(0.0, before), (2.0, after)], u, 100.0)
     y_before = simulate(before, u, 100.0)
     assert np.allclose(y[:200], y_before[:200])
@@ -59,3 +63,22 @@ def test_output_noise_fraction():
     y = np.column_stack([np.sin(np.arange(100000) * 0.1), 50 * np.cos(np.arange(100000) * 0.3)])
     n = add_output_noise(y, 0.05, rng) - y
     assert np.allclose(n.std(axis=0) / y.std(axis=0), 0.05, rtol=0.02)
+
+
+def test_cobra_rotor_mode_follows_table_2():
+    assert np.allclose(cobra_stick_at(32.0).A, cobra_stick_model().A)
+    for speed, f, z in COBRA_ROTOR_MODE_TABLE2:
+        modes = cobra_stick_at(speed).modes()
+        assert min(abs(m[0] - f) for m in modes) < 1e-9 * f
+        (zeta,) = [m[1] for m in modes if abs(m[0] - f) < 1e-6]
+        assert zeta == pytest.approx(z, abs=1e-12)
+    # the 23 and 36.6 Hz modes stay where they are
+    f38 = [m[0] for m in cobra_stick_at(38.0).modes()]
+    assert np.round(f38, 2).tolist() == [23.06, 36.64, 37.99]
+
+
+def test_paper_truth_has_the_6_hz_mode_from_20_s():
+    truth = paper_example_truth()
+    assert [m.name for m in truth] == ["mode_1", "mode_2", "mode_3"]
+    f, _ = truth[2].at([19.9, 20.0, 39.0, 40.1])
+    assert np.isnan(f[0]) and np.isnan(f[3]) and np.allclose(f[1:3], 6.0, atol=0.01)
