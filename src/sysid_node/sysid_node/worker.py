@@ -266,8 +266,8 @@ class WorkerLink:
             self._in_flight[batch_id] = items[0].arrived
             self._sent_ns[batch_id] = time.time_ns()
             self.stages.add("waiting", time.monotonic() - items[0].arrived)
-        blocks = [(s, t, v) for s in ("output", "input")
-                  for t, v in stack_blocks([(p.stamps, p.values) for p in items if p.stream == s])]
+        blocks = [(s, t, v) for s in ("output", "input") for t, v in
+                  stack_blocks([(p.stamps, p.values) for p in items if p.stream == s])]
         realize_from = None
         if held and self.newest_ns is not None:  # gathered while the worker was busy: behind
             keep = max(CATCH_UP_KEEP_S, 1.0 / float(self.values.get("publish_rate", 10.0)))

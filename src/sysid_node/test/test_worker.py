@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 import pytest
-from sysid_node.core.systems import paper_example_data
 from sysid_node.log_throttle import LogThrottle, kind_of
 from sysid_node.pipeline import Pipeline
+from sysid_node.scenarios.paper import paper_example_data
 from sysid_node.worker import WorkerLink
 
 from sysid_node import params as P
