@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from sysid_node.records import stack_blocks
+
 #: Batches in the pipe to the worker at most (one being processed, one waiting).
 IN_FLIGHT = 2
 #: A worker with work that has not reported for this long is reported stalled [s].
