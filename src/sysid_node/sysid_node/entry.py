@@ -57,6 +57,15 @@ def _run(args: list[str] | None) -> int:
 
     if stop_requested():
         return 0
+    from sysid_node import params as P
+    from sysid_node import params_file as PF
+
+    files, name = PF.files_in_args(sys.argv if args is None else args)
+    try:  # what rcl would ignore silently or answer with a traceback
+        for f in files:
+            PF.node_values(PF.read(f), name or "sysid_node", P.SPECS, path=f)
+    except PF.ParamsFileError as err:
+        return _fail(err)
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as err:  # RCLError: bad --ros-args, unparseable parameter file

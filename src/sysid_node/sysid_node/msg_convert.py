@@ -60,7 +60,8 @@ def signal_block_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     n = data.size // c
     period_ns = float(msg.sample_period) * 1e9
     if not math.isfinite(period_ns) or (n > 1 and period_ns <= 0):
-        return np.empty(0, np.int64), np.empty((0, c))
+        raise ValueError(f"SignalBlock of {n} samples with sample_period {msg.sample_period!r} "
+                         "(not a positive finite number): dropped")
     stamps = stamp_ns(msg.header) + np.round(np.arange(n) * period_ns).astype(np.int64)
     return stamps, data.reshape(n, c)
 
@@ -100,23 +101,46 @@ def signal_samples_to_arrays(msgs: Sequence[Any]) -> tuple[np.ndarray, np.ndarra
     return stamps, np.frombuffer(data, dtype=np.float64).reshape(n, width).copy()
 
 
+def channel_names(msg: Any) -> tuple[str, ...] | None:
+    """The channel names a SignalSample / SignalBlock carries (None if none)."""
+    names = getattr(msg, "channel_names", None)
+    return tuple(names) if names else None
+
+
 def burst_to_blocks(
     msgs: Sequence[Any], kind: str, axes: Sequence[str] = ("az",)
-) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[str]]:
-    """A burst of messages of one topic -> blocks ``(stamps, values)`` (consecutive messages of
-    equal channel count stacked) and one reason per unreadable message."""
+) -> tuple[list[tuple[np.ndarray, np.ndarray, tuple[str, ...] | None]], list[str]]:
+    """A burst of messages of one topic -> blocks ``(stamps, values, channel names)``
+    (consecutive messages of equal channel count and names stacked) and one reason per
+    unreadable message."""
     if kind == "SignalSample" and msgs:
+        names = channel_names(msgs[0])
         try:
-            return [signal_samples_to_arrays(msgs)], []
+            if all(channel_names(m) == names for m in msgs):
+                t, v = signal_samples_to_arrays(msgs)
+                return [(t, v, names)], []
         except (ValueError, TypeError, AttributeError):
             pass  # mixed channel counts or a malformed message: one at a time below
     blocks, errors = [], []
     for m in msgs:
         try:
-            blocks.append(to_arrays(m, kind, axes))
+            t, v = to_arrays(m, kind, axes)
         except (ValueError, TypeError, AttributeError) as err:
             errors.append(str(err))
-    return stack_blocks(blocks), errors
+            continue
+        blocks.append((t, v, channel_names(m) if kind != "Imu" else tuple(axes)))
+    return stack_named(blocks), errors
+
+
+def stack_named(blocks: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndarray, Any]]:
+    """Blocks ``(stamps, values, channel names)``: consecutive ones with the same names and
+    channel count concatenated (arrival order kept)."""
+    runs: list[tuple[Any, list]] = []
+    for t, v, names in blocks:
+        if not runs or runs[-1][0] != names:
+            runs.append((names, []))
+        runs[-1][1].append((t, v))
+    return [(t, v, names) for names, run in runs for t, v in stack_blocks(run)]
 
 
 # ---- signals out (rclpy) ----

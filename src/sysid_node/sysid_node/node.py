@@ -114,6 +114,8 @@ class SysidNode(Node):
         self._last_record_wall = math.nan
         self._latency = math.nan
         self._stop = threading.Event()
+        self._diag_lock = threading.Lock()
+        self._health_said = 0
         self._say = LogThrottle(self._info)
         self._warn = LogThrottle(self._warning)
         self.worker = WorkerLink(self.values, self._link_log)
@@ -232,7 +234,8 @@ class SysidNode(Node):
         blocks, errors = mc.burst_to_blocks(msgs, kind, axes)
         if errors:
             self._arrivals[f"{stream}_unreadable"] += len(errors)
-            self._warn.emit(f"{stream}: unreadable message: {errors[-1]}")
+            self._warn.emit(f"{stream}: unreadable message(s), {len(errors)} dropped: "
+                            f"{errors[-1]}")
         good = len(msgs) - len(errors)
         if blocks and len(blocks[-1][0]):
             self.worker.stages.add("arrival", (time.time_ns() - int(blocks[-1][0][-1])) * 1e-9)
@@ -262,6 +265,9 @@ class SysidNode(Node):
                     self._say.emit(line)
             for r in rep.records:
                 self._publish(r)
+            if rep.records and rep.records[-1].health != self._health_said:
+                self._health_said = rep.records[-1].health
+                self._diagnostics()  # a change of health is said at once, not at the next tick
             for sp in rep.spectra:
                 self.spectrum_pub.publish(mc.residual_spectrum_msg(sp))
             self.worker.check_backlog()
@@ -294,6 +300,10 @@ class SysidNode(Node):
 
     # ---- diagnostics ----
     def _diagnostics(self) -> None:
+        with self._diag_lock:
+            self._diagnostics_now()
+
+    def _diagnostics_now(self) -> None:
         now = time.monotonic()
         dt = max(now - self._diag_prev_t, 1e-6)
         st = self.worker.status
@@ -363,10 +373,3 @@ class SysidNode(Node):
         self._receiver.join(timeout=1.0)
         self._say.flush(force=True)
         self._warn.flush(force=True)
-
-
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run sysid_node sysid_node`` (see :mod:`sysid_node.entry`)."""
-    from sysid_node.entry import main as entry_main
-
-    return entry_main(args)

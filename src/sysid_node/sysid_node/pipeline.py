@@ -22,6 +22,7 @@ import numpy as np
 
 from sysid_node import params as P
 from sysid_node.decimation import Decimator
+from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
 from sysid_node.records import (
     STATUS_NAMES,
@@ -29,6 +30,7 @@ from sysid_node.records import (
     ModeRecord,
     SpectrumRecord,
 )
+from sysid_node.sensor_checks import SensorChecks
 from sysid_node.validation.residuals import residual_spectrum
 
 
@@ -93,6 +95,7 @@ class Pipeline:
         self._next_spectrum_ns: int | None = None
         self._recent = _Recent(0)
         self._samples = 0
+        self._sensors: SensorChecks | None = None
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
         RecursiveDSRA, ModeTracker = self._core
@@ -169,11 +172,32 @@ class Pipeline:
         return dict(self.ingest.counters)
 
     # ---- data in ----
-    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
-        self.ingest.push_output(stamps_ns, values)
+    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray,
+                    names: tuple[str, ...] | None = None) -> None:
+        self.ingest.push_output(stamps_ns, values, names)
 
-    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
-        self.ingest.push_input(stamps_ns, values)
+    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray,
+                   names: tuple[str, ...] | None = None) -> None:
+        self.ingest.push_input(stamps_ns, values, names)
+
+    def faults(self) -> list[tuple[int, str]]:
+        """Input-side faults now: (HEALTH_* level, reason) of stuck, dead or clipped
+        channels (sensor_checks.py)."""
+        return self._sensors.faults() if self._sensors is not None else []
+
+    def _check_sensors(self, c: Chunk) -> None:
+        if self._sensors is None or c.reset:
+            self._sensors = SensorChecks(self.sample_rate)
+        self._sensors.add(c.y, c.u)
+
+    def _apply_health(self, records: list[EstimateRecord]) -> None:
+        """Fold the input-side faults into the records' health (worst level wins); a record
+        with a fault is never reported converged."""
+        faults = self.faults()
+        for r in records:
+            r.health, r.health_reason = merge_health(r.health, r.health_reason, faults)
+            if r.health >= HEALTH_FAULT:
+                r.converged = False
 
     def step(self, flush: bool = False, realize_from_ns: int | None = None
              ) -> list[EstimateRecord]:
@@ -189,6 +213,7 @@ class Pipeline:
         self._drain_events()
         records: list[EstimateRecord] = []
         for c in chunks:
+            self._check_sensors(c)
             if realize_from_ns is not None and len(c) and c.stamps_ns[0] < realize_from_ns:
                 cut = int(np.searchsorted(c.stamps_ns, realize_from_ns))
                 self._feed(_slice(c, 0, cut), realize=False)
@@ -196,6 +221,7 @@ class Pipeline:
                 if not len(c):
                     continue
             records += self._feed(c)
+        self._apply_health(records)
         return records
 
     def _drain_events(self) -> None:

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from sysid_node.records import stack_blocks
+from sysid_node.msg_convert import stack_named
 
 #: Batches in the pipe to the worker at most (one being processed, one waiting).
 IN_FLIGHT = 2
@@ -95,7 +95,8 @@ def worker_main(values: dict[str, Any], inbox: Any, outbox: Any) -> None:
     """Body of the worker process (multiprocessing, spawn): a Pipeline fed with the batches
     the node sends.
 
-    Inbox items: ``("data", batch_id, [(stream, stamps, values), ...], realize_from_ns)``,
+    Inbox items: ``("data", batch_id, [(stream, stamps, values, names), ...],
+    realize_from_ns)``,
     ``("params", changes)``, ``("reset", None)``, ``None`` (stop). Outbox items: ``("ready",
     error)`` first, then one :class:`Report` per data batch (``batch_id`` -1 after parameters).
     """
@@ -123,8 +124,8 @@ def worker_main(values: dict[str, Any], inbox: Any, outbox: Any) -> None:
         try:
             if kind == "data":
                 batch_id, blocks, realize_from_ns = payload
-                for stream, t, v in blocks:
-                    (pl.push_output if stream == "output" else pl.push_input)(t, v)
+                for stream, t, v, names in blocks:
+                    (pl.push_output if stream == "output" else pl.push_input)(t, v, names)
                 records = pl.step(realize_from_ns=realize_from_ns)
             elif kind == "params":
                 reason = pl.set_parameters(payload[0])
@@ -147,6 +148,7 @@ class _Pending:
     values: np.ndarray
     messages: int
     arrived: float = 0.0  # time.monotonic()
+    names: tuple[str, ...] | None = None
 
 
 class WorkerLink:
@@ -234,19 +236,22 @@ class WorkerLink:
             q.close()
 
     # ---- data in ----
-    def submit(self, stream: str, blocks: list[tuple[np.ndarray, np.ndarray]],
-               messages: int) -> None:
+    def submit(self, stream: str, blocks: list[tuple], messages: int) -> None:
         """Queue the converted messages of one burst of ``stream``; send if the worker has
         credit."""
         if not blocks:
             return
-        newest = max(int(t.max()) for t, _ in blocks if len(t))
+        blocks = [b for b in blocks if len(b[0])]
+        if not blocks:
+            return
+        newest = max(int(b[0].max()) for b in blocks)
         with self._lock:
             if self.newest_ns is None or newest > self.newest_ns or \
                     newest < self.newest_ns - 10**9:  # a clock reset starts a new time line
                 self.newest_ns = newest
-            for t, v in blocks:
-                self._pending.append(_Pending(stream, t, v, messages, time.monotonic()))
+            for t, v, *names in blocks:
+                self._pending.append(_Pending(stream, t, v, messages, time.monotonic(),
+                                              names[0] if names else None))
                 messages = 0  # counted once per burst
             if len(self._in_flight) >= IN_FLIGHT:
                 self._held_back = True
@@ -268,10 +273,11 @@ class WorkerLink:
             self._in_flight[batch_id] = items[0].arrived
             self._sent_ns[batch_id] = time.time_ns()
             self.stages.add("waiting", time.monotonic() - items[0].arrived)
-        blocks = [(s, t, v) for s in ("output", "input") for t, v in
-                  stack_blocks([(p.stamps, p.values) for p in items if p.stream == s])]
+        blocks = [(s, *b) for s in ("output", "input") for b in
+                  stack_named([(p.stamps, p.values, p.names) for p in items if p.stream == s])]
         realize_from = None
-        if held and self.newest_ns is not None:  # gathered while the worker was busy: behind
+        if held and self.newest_ns is not None and self.values.get("catch_up", True):
+            # gathered while the worker was busy: behind
             keep = max(CATCH_UP_KEEP_S, 1.0 / float(self.values.get("publish_rate", 10.0)))
             realize_from = self.newest_ns - int(keep * 1e9)
         try:
