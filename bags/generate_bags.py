@@ -15,7 +15,8 @@ import shutil
 import sys
 from pathlib import Path
 
-from sysid_node.bag_io import BagError, write_signals
+import numpy as np
+from sysid_node.bag_io import BagError, read_signals, write_signals
 from sysid_node.scenarios.bags import BAG_SCENARIOS as SCENARIOS
 from sysid_node.scenarios.bags import START_TIME_S, BagScenario
 
@@ -37,6 +38,24 @@ def write(scn: BagScenario, out: Path, storage: str = "mcap", compress: bool = T
     return bag
 
 
+def check(names: list[str], where: Path) -> int:
+    """Print max |new - committed| / max |committed| per bag (1 if a bag is missing)."""
+    print(f"{'bag':<20} {'max |new - bag| / max |bag|':>28}")
+    status = 0
+    for name in names:
+        scn = SCENARIOS[name]()
+        try:
+            old = read_signals(where / name)
+        except BagError as err:
+            print(f"{name:<20} {'missing: ' + str(err)[:60]:>28}")
+            status = 1
+            continue
+        err = max(float(np.max(np.abs(v - old[topic].values)) / np.max(np.abs(old[topic].values)))
+                  for topic, (_, v, _) in scn.signals.items())
+        print(f"{name:<20} {err:>28.2e}")
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -45,10 +64,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=BAGS, help="output directory (default bags/)")
     ap.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     ap.add_argument("--no-compress", action="store_true", help="plain files (for viewers)")
+    ap.add_argument("--check", action="store_true",
+                    help="write nothing: print how far freshly simulated data lies from the bags")
     args = ap.parse_args(argv)
     unknown = [n for n in args.names if n not in SCENARIOS]
     if unknown:
         ap.error(f"unknown scenario {', '.join(unknown)}; choose from {', '.join(SCENARIOS)}")
+    if args.check:
+        return check(args.names or list(SCENARIOS), args.out)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
         print(f"{'bag':<20} {'duration':>9} {'messages':>9} {'size':>9}  topics")

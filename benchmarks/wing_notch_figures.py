@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     fs, duration = float(truth["sample_rate_hz"]), float(truth["duration_s"])
     notch_values = {**NP.defaults(),
-                    **yaml.safe_load(CONFIG.read_text())["notch_filter_node"]["ros__parameters"]}
+                    **yaml.safe_load(CONFIG.read_text())["/**/notch_filter_node"]["ros__parameters"]}
     cfg = NP.policy_config(notch_values)
 
     t = np.arange(int(duration * fs)) / fs

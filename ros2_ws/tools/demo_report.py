@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -152,47 +149,24 @@ def analyse(bag: Path, recorded: Path) -> DemoResult:
     return res
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    return base64.b64encode(buf.getvalue()).decode()
-
-
 def write_report(res: DemoResult, path: Path) -> Path:
     """HTML report with the figures embedded (one self-contained file)."""
-    import matplotlib
+    from sysid_node.report import ModePoint, Page, figure, plot_mode_tracks
+    from sysid_node.scenarios.truth import TrueMode
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    page = Page(f"Adaptive notch demo: {res.bag.name}")
+    points = [ModePoint(e["t"], m[0], MODE_STATUS[m[1]], m[2], m[3], m[4])
+              for e in res.estimates for m in e["modes"]]
+    truth = [TrueMode(m["name"], m.get("kind", "structural"), m["t_s"], m["frequency_hz"],
+                      m["damping_ratio"]) for m in (res.truth or {}).get("modes", [])]
+    fig, ax = figure(2, 1, 9, 3.2, sharex=True)
+    plot_mode_tracks(ax[0, 0], ax[1, 0], points, truth=truth)
+    ax[0, 0].set_title("Identified modes against time (2-sigma band; dashed: truth; faint: "
+                       "tentative or lost), cf. the paper's Fig. 2")
+    page.heading("Modes tracked against time").figure(fig)
 
-    figs = []
-    fig, (ax_f, ax_z) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
-    ids = sorted({m[0] for e in res.estimates for m in e["modes"]})
-    for mid in ids:
-        pts = [
-            (e["t"], m[2], m[3], m[4])
-            for e in res.estimates
-            for m in e["modes"]
-            if m[0] == mid and m[1] != 2
-        ]
-        if not pts:
-            continue
-        t, f, fs_, z = (np.array(v) for v in zip(*pts, strict=True))
-        line = ax_f.plot(t, f, ".", ms=3, label=f"mode #{mid}")[0]
-        ok = np.isfinite(fs_)
-        ax_f.fill_between(
-            t[ok], (f - 2 * fs_)[ok], (f + 2 * fs_)[ok], color=line.get_color(), alpha=0.2
-        )
-        ax_z.plot(t, 100 * z, ".", ms=3, color=line.get_color())
-    ax_f.set_ylabel("frequency [Hz]")
-    ax_f.set_title("Identified modes against time (2-sigma band), cf. the paper's Fig. 2")
-    ax_f.legend(loc="upper left", fontsize=8, ncol=3)
-    ax_z.set_ylabel("damping ratio [%]")
-    ax_z.set_xlabel("time [s]")
-    figs.append(("Modes tracked against time", _png(fig)))
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, ax = figure(1, 1, 9, 4)
+    ax = ax[0, 0]
     for e in res.estimates:
         tracked = [m[2] for m in e["modes"] if m[1] == 1]
         ax.plot([e["t"]] * len(tracked), tracked, ".", color="0.6", ms=3)
@@ -202,9 +176,9 @@ def write_report(res: DemoResult, path: Path) -> Path:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("frequency [Hz]")
     ax.set_title("Notch centres (lines) over the tracked modes (grey)")
-    ax.legend(fontsize=8)
-    figs.append(("Notch centres over the estimated modes", _png(fig)))
-    plt.close(fig)
+    if res.banks:
+        ax.legend(fontsize=8)
+    page.heading("Notch centres over the estimated modes").figure(fig)
 
     if res.y_out is not None and res.y_in is not None:
         fs = 1.0 / np.median(np.diff(res.t_in))
@@ -213,7 +187,8 @@ def write_report(res: DemoResult, path: Path) -> Path:
         n = min(a.size, b.size)
         f, pa = sps.welch(a[:n], fs=fs, nperseg=min(1024, n))
         _, pb = sps.welch(b[:n], fs=fs, nperseg=min(1024, n))
-        fig, ax = plt.subplots(figsize=(9, 4))
+        fig, ax = figure(1, 1, 9, 4)
+        ax = ax[0, 0]
         ax.semilogy(f, pa, label="before the notch bank (/vibration)")
         ax.semilogy(f, pb, label="after (/vibration_filtered)")
         ax.set_xlim(0, min(fs / 2, 15))
@@ -221,20 +196,8 @@ def write_report(res: DemoResult, path: Path) -> Path:
         ax.set_ylabel("PSD [unit^2/Hz]")
         ax.set_title("Spectrum before and after the notch bank (second half of the run)")
         ax.legend()
-        figs.append(("Spectrum before and after", _png(fig)))
-        plt.close(fig)
+        page.heading("Spectrum before and after").figure(fig)
 
-    body = "".join(
-        f"<h2>{html.escape(t)}</h2><img src='data:image/png;base64,{b}'/>" for t, b in figs
-    )
-    table = html.escape(res.table())
-    summ = html.escape(json.dumps(res.summary(), indent=2))
-    path.write_text(
-        "<!doctype html><html><head><meta charset='utf-8'><title>Adaptive notch demo</title>"
-        "<style>body{font-family:sans-serif;max-width:1000px;margin:auto}img{max-width:100%}"
-        "pre{background:#f4f4f4;padding:8px;font-size:12px}</style></head><body>"
-        f"<h1>Adaptive notch demo: {html.escape(res.bag.name)}</h1>{body}"
-        f"<h2>Modes and notch centres over time</h2><pre>{table}</pre>"
-        f"<h2>Summary</h2><pre>{summ}</pre></body></html>"
-    )
-    return path
+    page.heading("Modes and notch centres over time").pre(res.table())
+    page.heading("Summary").summary(res.summary())
+    return page.write(path)

@@ -4,6 +4,9 @@ from glob import glob
 
 from setuptools import find_packages, setup
 
+# Standalone on purpose: colcon (and a per-package release) builds each package from its own
+# directory, so the ament boilerplate below cannot come from a shared module.
+
 package_name = "sysid_node"
 
 setup(
@@ -17,12 +20,10 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools"],
-    zip_safe=True,
     maintainer="sysid maintainers",
     maintainer_email="sysid-maintainers@example.com",
     description="Online structural mode identification with the recursive DSRA.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "replay = sysid_node.tools.replay:main",

@@ -20,17 +20,7 @@ from typing import Any
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterException,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -41,19 +31,15 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from sysid_node.node import ESTIMATE_QOS  # the publisher's QoS of /modal_estimate
 
 from notch_filter_node import params as P
 from notch_filter_node.adaptive import AdaptiveNotchFilter
 from notch_filter_node.policy import STATE_NAMES, EstimateInput, ModeInput
 from sysid_msgs.msg import ModalEstimate, Notch, NotchBank
 from sysid_node import msg_convert as mc
+from sysid_node import node_params as NP
 
-ESTIMATE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
 STATUS_NAMES = {0: "tentative", 1: "tracked", 2: "lost"}
 #: Samples whose stamps measure the sample rate when neither a parameter nor the message gives it.
 RATE_SAMPLES = 20
@@ -63,22 +49,9 @@ class StartupError(RuntimeError):
     """The node cannot start; ``str(err)`` is a one-line reason."""
 
 
-def descriptor(spec: P.ParamSpec) -> ParameterDescriptor:
-    """ROS parameter descriptor (description, range, read-only) of a parameter spec."""
-    text = spec.description
-    if spec.choices:
-        text += f" [{'|'.join(spec.choices)}]"
-    text += {"structural": " (structural: rebuilds the bank)", "read_only": " (read-only)",
-             "live": " (live-tunable)"}[spec.kind]
-    d = ParameterDescriptor(description=text, read_only=spec.kind == "read_only")
-    if spec.type is float:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
-                                                     to_value=float(spec.hi))]
-    elif spec.type is int:
-        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi))]
-    if spec.choices:
-        d.additional_constraints = "one of: " + ", ".join(spec.choices)
-    return d
+#: What each kind of parameter does, appended to its description.
+KIND_NOTES = {"structural": " (structural: rebuilds the bank)", "read_only": " (read-only)",
+              "live": " (live-tunable)"}
 
 
 def estimate_input(msg: Any) -> EstimateInput:
@@ -123,14 +96,10 @@ class NotchFilterNode(Node):
 
     def __init__(self) -> None:
         super().__init__("notch_filter_node")
-        self._coerce_int_overrides()
         try:
-            for spec in P.PARAMS:
-                self.declare_parameter(spec.name, spec.default, descriptor(spec))
-        except (InvalidParameterValueException, InvalidParameterTypeException,
-                ParameterException) as err:
-            raise StartupError(str(err).splitlines()[0]) from None
-        self.values = {s.name: self.get_parameter(s.name).value for s in P.PARAMS}
+            self.values = NP.declare(self, P.PARAMS, KIND_NOTES)
+        except NP.ParameterError as err:
+            raise StartupError(str(err)) from None
         reason = P.validate_set(self.values)
         if reason:
             raise StartupError(f"invalid parameters: {reason}")
@@ -163,30 +132,21 @@ class NotchFilterNode(Node):
         self.out_pub = self.create_publisher(cls, v["output_topic"], out_qos)
         self.bank_pub = self.create_publisher(NotchBank, v["bank_topic"], 10)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ModalEstimate, v["estimate_topic"], self._on_estimate,
-                                 ESTIMATE_QOS)
-        self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
+        est_sub = self.create_subscription(ModalEstimate, v["estimate_topic"],
+                                           self._on_estimate, ESTIMATE_QOS)
+        sig_sub = self.create_subscription(cls, v["signal_topic"], self._on_signal, sig_qos)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._bank_timer = self.create_timer(1.0 / v["bank_rate"], self._publish_bank_periodic)
         self._diag_timer = self.create_timer(1.0 / v["diagnostics_rate"], self._publish_diag)
         if v["sample_rate"] > 0:
             self._build(v["sample_rate"], None)
+        # the names after remapping and namespace, as `ros2 topic list` shows them
         self.get_logger().info(
-            f"filtering {v['signal_topic']} ({self.kind}) -> {v['output_topic']}, "
-            f"estimates from {v['estimate_topic']}"
+            f"filtering {sig_sub.topic_name} ({self.kind}) -> {self.out_pub.topic_name}, "
+            f"estimates from {est_sub.topic_name}, bank on {self.bank_pub.topic_name}"
         )
 
     # ---- parameters ----
-    def _coerce_int_overrides(self) -> None:
-        """Accept ``depth: 30`` (an integer) for a float parameter, as users write it."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, p in list(overrides.items()):
-            spec = P.SPECS.get(name)
-            if spec and spec.type is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
-
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         changes = {p.name: p.value for p in parameters if p.name in P.SPECS}
         if not changes:
@@ -194,11 +154,7 @@ class NotchFilterNode(Node):
         new = {**self.values, **changes}
         fs = self.filter.fs if self.filter is not None else math.nan
         reason = P.validate_set(new, fs if new["sample_rate"] == 0 else math.nan)
-        if not reason:
-            ro = [k for k in changes if P.SPECS[k].kind == "read_only"
-                  and changes[k] != self.values[k]]
-            if ro:
-                reason = f"{', '.join(ro)} can only be set at start-up"
+        reason = reason or NP.read_only_changes(P.SPECS, self.values, changes)
         if reason:
             self.get_logger().warning(f"parameter change rejected: {reason}")
             return SetParametersResult(successful=False, reason=reason)
@@ -376,7 +332,9 @@ class NotchFilterNode(Node):
 
     def _publish_diag(self) -> None:
         st = self.filter.status() if self.filter is not None else None
-        s = DiagnosticStatus(name="notch_filter_node: notch bank", hardware_id=self.get_name())
+        s = DiagnosticStatus(
+            name=f"{self.get_fully_qualified_name().lstrip('/')}: notch bank",
+            hardware_id=self.get_fully_qualified_name())
         if st is None:
             s.level, s.message = DiagnosticStatus.WARN, "waiting for the signal"
         elif st.fallback_active:

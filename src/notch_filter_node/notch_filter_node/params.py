@@ -10,56 +10,37 @@ start-up (topics: remap them or pass them with --ros-args -p). :func:`validate` 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any, Literal
+from dataclasses import fields
+from typing import Any
+
+from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
+from sysid_node.topics import topic_name_error
 
 from notch_filter_node.policy import PolicyConfig, check_config
+from sysid_node import node_params as NP
 
-Kind = Literal["live", "structural", "read_only"]
-SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
-QOS_CHOICES = ("sensor_data", "reliable")
-IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
 MAX_CHANNELS = 64
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One node parameter: type, default, range (``lo``/``hi`` inclusive), kind."""
-
-    name: str
-    type: type
-    default: Any
-    description: str
-    kind: Kind = "live"
-    lo: float | None = None
-    hi: float | None = None
-    choices: tuple[str, ...] | None = None
-    unit: str = ""
-
-
-def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw: Any) -> ParamSpec:
-    return ParamSpec(name, typ, default, desc, kind, **kw)
+_p = ParamSpec  # _p(name, type, default, description, kind, lo=, hi=, choices=, unit=)
 
 
 _D = PolicyConfig()
 PARAMS: tuple[ParamSpec, ...] = (
     # -- topics and QoS (read-only) --
-    _p("signal_topic", str, "/vibration", "Topic of the signal to filter", "read_only"),
-    _p("signal_type", str, "SignalSample", "Message type of signal_topic", "read_only",
-       choices=SIGNAL_TYPES),
-    _p("imu_axes", str, "az",
-       "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
-       "wx,wy,wz (angular velocity); the other fields are passed through", "read_only"),
-    _p("output_topic", str, "/vibration_filtered",
+    _p("signal_topic", str, "vibration", "Topic of the signal to filter", "read_only"),
+    NP.signal_type_spec("signal_type", "signal_topic", "read_only"),
+    NP.imu_axes_spec("read_only", "; the other fields are passed through"),
+    _p("output_topic", str, "vibration_filtered",
        "Topic of the filtered signal (same type and header stamp as the input)", "read_only"),
-    _p("estimate_topic", str, "/modal_estimate", "Topic of sysid_msgs/ModalEstimate",
+    _p("estimate_topic", str, "modal_estimate", "Topic of sysid_msgs/ModalEstimate",
        "read_only"),
-    _p("bank_topic", str, "/notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
+    _p("bank_topic", str, "notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
     _p("qos_depth", int, 100, "History depth of the signal subscription and publisher "
        "[messages]", "read_only", lo=1, hi=100000),
     _p("output_qos", str, "reliable",
        "QoS of the filtered output: 'reliable' (matches reliable and best-effort subscribers) or "
-       "'sensor_data' (best effort)", "read_only", choices=QOS_CHOICES),
+       "'sensor_data' (best effort)", "read_only", choices=NP.QOS_CHOICES),
     _p("max_notches", int, _D.max_notches,
        "Number of adaptive notch sections (the fallback notch has its own) [-]", "read_only",
        lo=1, hi=20),
@@ -149,11 +130,6 @@ def defaults() -> dict[str, Any]:
     return {s.name: s.default for s in PARAMS}
 
 
-def parse_list(text: str) -> list[str]:
-    """'a, b' -> ['a', 'b']."""
-    return [a.strip() for a in str(text).split(",") if a.strip()]
-
-
 def disabled_channels(text: str) -> list[int]:
     """'0, 3' -> [0, 3] (validated by :func:`validate`)."""
     return [int(a) for a in parse_list(text)]
@@ -161,33 +137,22 @@ def disabled_channels(text: str) -> list[int]:
 
 def validate(name: str, value: Any) -> str:
     """Check one value against its spec; '' if valid, else the reason."""
-    spec = SPECS.get(name)
-    if spec is None:
-        return f"unknown parameter '{name}'"
-    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    if not isinstance(value, spec.type) or (spec.type is int and isinstance(value, bool)):
-        return f"{name} must be of type {spec.type.__name__}, got {type(value).__name__}"
-    if spec.type is float and not math.isfinite(value):
-        return f"{name} must be finite, got {value}"
-    unit = f" {spec.unit}" if spec.unit else ""
-    if spec.lo is not None and value < spec.lo:
-        return f"{name}={value} is below the minimum {spec.lo:g}{unit}"
-    if spec.hi is not None and value > spec.hi:
-        return f"{name}={value} is above the maximum {spec.hi:g}{unit}"
-    if spec.choices is not None and value not in spec.choices:
-        return f"{name}='{value}' is not one of {', '.join(spec.choices)}"
+    return check(SPECS, name, value) or _check_notch(name, value)
+
+
+def _check_notch(name: str, value: Any) -> str:
+    """This node's own checks of a value of the right type ('' if valid)."""
     if name == "imu_axes":
-        axes = parse_list(value)
-        if not axes or any(a not in IMU_AXES for a in axes) or len(set(axes)) != len(axes):
-            return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+        return check_imu_axes(value)
     if name == "disabled_channels":
         items = parse_list(value)
         if not all(a.isdigit() and int(a) < MAX_CHANNELS for a in items):
             return (f"disabled_channels='{value}': use comma-separated channel indices "
                     f"0..{MAX_CHANNELS - 1}")
-    if name.endswith("_topic") and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name.endswith("_topic"):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 

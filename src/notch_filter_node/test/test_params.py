@@ -33,7 +33,8 @@ def test_defaults_match_policy_config():
         ("signal_type", "Foo", "not one of"),
         ("imu_axes", "az,qq", "imu_axes"),
         ("disabled_channels", "1,x", "disabled_channels"),
-        ("output_topic", "relative", "absolute"),
+        ("output_topic", "a//b", "empty name token"),
+        ("bank_topic", "bank-1", "letters, digits"),
         ("depth", "deep", "type float"),
         ("hold_time", float("nan"), "finite"),
         ("nope", 1, "unknown"),
@@ -53,7 +54,7 @@ def test_cross_checks():
 
 def test_shipped_yaml_is_the_defaults():
     doc = yaml.safe_load((PKG / "config" / "notch_filter_node.yaml").read_text())
-    values = doc["notch_filter_node"]["ros__parameters"]
+    values = doc["/**/notch_filter_node"]["ros__parameters"]
     assert set(values) == set(P.SPECS)
     for k, v in values.items():
         assert v == P.SPECS[k].default, k

@@ -317,8 +317,18 @@ def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 
     )
 
 
+#: rosbag2 metadata version written: 8 is the newest that every supported distribution reads.
+#: Humble and Iron take ``offered_qos_profiles`` as a YAML *string* whatever the version; Jazzy
+#: and later take a string up to version 8 and a list from version 9. A version 8 bag (string
+#: profiles with integer policies, ``''`` when none) is therefore read by Humble, Iron, Jazzy,
+#: Kilted and Rolling alike (test/test_bag_metadata.py checks every bag against those rules).
+BAG_VERSION = 8
+SUPPORTED_DISTROS = ("humble", "iron", "jazzy", "kilted", "rolling")
+
+
 class BagWriter:
-    """A rosbag2 writer (rosbags ``Writer``, format version 9) with sysid_msgs registered.
+    """A rosbag2 writer (rosbags ``Writer``, format version :data:`BAG_VERSION`) with
+    sysid_msgs registered.
 
     Use as a context manager; ``add_topic`` then ``write`` (rosbags message) or ``write_raw``
     (serialized CDR bytes, written as they are). On an exception inside the ``with`` block the
@@ -329,7 +339,7 @@ class BagWriter:
         self,
         path: str | os.PathLike,
         storage: str = "mcap",
-        version: int = 9,
+        version: int = BAG_VERSION,
         compress: bool = False,
     ) -> None:
         if storage not in STORAGES:

@@ -83,6 +83,18 @@ def to_arrays(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> tuple[np.nd
     raise ValueError(f"unsupported signal type '{kind}'")
 
 
+def channel_names(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> list[str]:
+    """Channel names a signal message carries (``channel_names`` of SignalSample/SignalBlock,
+    the IMU axes read, e.g. ``['az']``); empty when the message names none."""
+    if kind == "Imu":
+        return list(axes)
+    return [str(n) for n in getattr(msg, "channel_names", ())]
+
+
+def _names(msg: Any, kind: str, axes: Sequence[str]) -> tuple[str, ...] | None:
+    return tuple(channel_names(msg, kind, axes)) or None
+
+
 def signal_samples_to_arrays(msgs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
     """Many SignalSample messages of one channel count -> stamps ``(n,)`` [ns], values
     ``(n, channels)``, without a Python loop over the values (ValueError if the counts
@@ -101,12 +113,6 @@ def signal_samples_to_arrays(msgs: Sequence[Any]) -> tuple[np.ndarray, np.ndarra
     return stamps, np.frombuffer(data, dtype=np.float64).reshape(n, width).copy()
 
 
-def channel_names(msg: Any) -> tuple[str, ...] | None:
-    """The channel names a SignalSample / SignalBlock carries (None if none)."""
-    names = getattr(msg, "channel_names", None)
-    return tuple(names) if names else None
-
-
 def burst_to_blocks(
     msgs: Sequence[Any], kind: str, axes: Sequence[str] = ("az",)
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, tuple[str, ...] | None]], list[str]]:
@@ -114,9 +120,9 @@ def burst_to_blocks(
     (consecutive messages of equal channel count and names stacked) and one reason per
     unreadable message."""
     if kind == "SignalSample" and msgs:
-        names = channel_names(msgs[0])
+        names = _names(msgs[0], kind, axes)
         try:
-            if all(channel_names(m) == names for m in msgs):
+            if all(_names(m, kind, axes) == names for m in msgs):
                 t, v = signal_samples_to_arrays(msgs)
                 return [(t, v, names)], []
         except (ValueError, TypeError, AttributeError):
@@ -128,7 +134,7 @@ def burst_to_blocks(
         except (ValueError, TypeError, AttributeError) as err:
             errors.append(str(err))
             continue
-        blocks.append((t, v, channel_names(m) if kind != "Imu" else tuple(axes)))
+        blocks.append((t, v, _names(m, kind, axes)))
     return stack_named(blocks), errors
 
 

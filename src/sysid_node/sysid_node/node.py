@@ -24,17 +24,7 @@ from collections import Counter
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterException,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -42,6 +32,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sysid_msgs.msg import ModalEstimate, ResidualSpectrum
 from sysid_node import diagnostics as D
 from sysid_node import msg_convert as mc
+from sysid_node import node_params as NP
 from sysid_node import params as P
 from sysid_node.log_throttle import LogThrottle
 from sysid_node.records import EstimateRecord
@@ -63,22 +54,9 @@ class StartupError(RuntimeError):
     """The node cannot start; ``str(err)`` is a one-line reason."""
 
 
-def descriptor(spec: P.ParamSpec) -> ParameterDescriptor:
-    """ROS parameter descriptor (description, range, read-only) of a parameter spec."""
-    text = spec.description
-    if spec.choices:
-        text += f" [{'|'.join(spec.choices)}]"
-    text += {"structural": " (structural: a change resets the estimator)",
-             "read_only": " (read-only)", "live": " (live-tunable)"}[spec.kind]
-    d = ParameterDescriptor(description=text, read_only=spec.kind == "read_only")
-    if spec.type is float:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.lo),
-                                                     to_value=float(spec.hi))]
-    elif spec.type is int:
-        d.integer_range = [IntegerRange(from_value=int(spec.lo), to_value=int(spec.hi))]
-    if spec.choices:
-        d.additional_constraints = "one of: " + ", ".join(spec.choices)
-    return d
+#: What each kind of parameter does, appended to its description.
+KIND_NOTES = {"structural": " (structural: a change resets the estimator)",
+              "read_only": " (read-only)", "live": " (live-tunable)"}
 
 
 def _qos(values: dict[str, Any]) -> QoSProfile:
@@ -123,9 +101,9 @@ class SysidNode(Node):
         if error:
             self.worker.stop(timeout=0.5)
             raise StartupError(f"the estimator cannot start: {error}")
-        self.estimate_pub = self.create_publisher(ModalEstimate, "/modal_estimate", ESTIMATE_QOS)
+        self.estimate_pub = self.create_publisher(ModalEstimate, "modal_estimate", ESTIMATE_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.spectrum_pub = self.create_publisher(ResidualSpectrum, "/residual_spectrum", 10)
+        self.spectrum_pub = self.create_publisher(ResidualSpectrum, "residual_spectrum", 10)
         self._subs: dict[str, Any] = {}
         self._subscribe(self.values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -137,36 +115,25 @@ class SysidNode(Node):
                                           daemon=True)
         self._receiver.start()
         v = self.values
-        mode = "output-only" if v["output_only"] or not v["input_topic"] else (
-            f"inputs from {v['input_topic']} ({v['input_type']})")
+        # the names after remapping and namespace, as `ros2 topic list` shows them
+        names = [s.topic_name for s in self._subs.values()]
+        mode = "output-only" if len(names) < 2 else (
+            f"inputs from {names[1]} ({v['input_type']})")
         self.get_logger().info(
-            f"identifying modes from {v['output_topic']} ({v['output_type']}), {mode}; "
-            f"publishing /modal_estimate at {v['publish_rate']:g} Hz of data time")
+            f"identifying modes from {names[0]} ({v['output_type']}), {mode}; "
+            f"publishing {self.estimate_pub.topic_name} at {v['publish_rate']:g} Hz of "
+            f"data time, {self.spectrum_pub.topic_name}, /diagnostics")
 
     # ---- parameters ----
     def _declare_parameters(self) -> dict[str, Any]:
-        self._coerce_int_overrides()
         try:
-            for spec in P.PARAMS:
-                self.declare_parameter(spec.name, spec.default, descriptor(spec))
-        except (InvalidParameterValueException, InvalidParameterTypeException,
-                ParameterException) as err:
-            raise StartupError(str(err).splitlines()[0]) from None
-        values = {s.name: self.get_parameter(s.name).value for s in P.PARAMS}
+            values = NP.declare(self, P.PARAMS, KIND_NOTES)
+        except NP.ParameterError as err:
+            raise StartupError(str(err)) from None
         reason = P.validate_set(values)
         if reason:
             raise StartupError(f"invalid parameters: {reason}")
         return values
-
-    def _coerce_int_overrides(self) -> None:
-        """Accept ``sample_rate: 100`` (an integer) for a float parameter, as users write it."""
-        overrides = getattr(self, "_parameter_overrides", None)
-        if not isinstance(overrides, dict):
-            return
-        for name, p in list(overrides.items()):
-            spec = P.SPECS.get(name)
-            if spec and spec.type is float and p.type_ == Parameter.Type.INTEGER:
-                overrides[name] = Parameter(name, Parameter.Type.DOUBLE, float(p.value))
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         # parameters rclpy owns (use_sim_time, ...) are not ours to check

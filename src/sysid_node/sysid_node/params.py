@@ -14,41 +14,21 @@ a time constant in seconds that is independent of the sample rate (``memory_time
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
+from sysid_node import node_params as NP
 from sysid_node.decimation import auto_factor
+from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
+from sysid_node.topics import topic_name_error
 
-Kind = Literal["live", "structural", "read_only"]
-
-SIGNAL_TYPES = ("SignalSample", "SignalBlock", "Imu")
-QOS_CHOICES = ("sensor_data", "reliable")
 RATE_POLICIES = ("resample", "reject")
-IMU_AXES = ("ax", "ay", "az", "wx", "wy", "wz")
 #: Default upper band edge as a fraction of the sample rate (0.4 fs = 80 % of Nyquist).
 NYQUIST_SAFE_FRACTION = 0.4
 #: Automatic block rows aim at this many rows of the stacked window 2 i (m + l).
 AUTO_WINDOW_ROWS = 140
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One node parameter: its type, default, range (``lo``/``hi`` inclusive) and kind."""
-
-    name: str
-    type: type
-    default: Any
-    description: str
-    kind: Kind = "live"
-    lo: float | None = None
-    hi: float | None = None
-    choices: tuple[str, ...] | None = None
-    unit: str = ""
-
-
-def _p(name: str, typ: type, default: Any, desc: str, kind: Kind = "live", **kw: Any) -> ParamSpec:
-    return ParamSpec(name, typ, default, desc, kind, **kw)
-
+_p = ParamSpec  # _p(name, type, default, description, kind, lo=, hi=, choices=, unit=)
 
 PARAMS: tuple[ParamSpec, ...] = (
     # -- sampling and channel layout (structural) --
@@ -133,20 +113,18 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
        unit="s"),
     # -- topics and QoS (structural: the node subscribes again) --
-    _p("output_topic", str, "/vibration", "Topic of the measured responses (outputs)",
+    _p("output_topic", str, "vibration",
+       "Topic of the measured responses (outputs); relative names follow the node's namespace",
        "structural"),
-    _p("output_type", str, "SignalSample", "Message type of output_topic", "structural",
-       choices=SIGNAL_TYPES),
-    _p("input_topic", str, "/excitation",
-       "Topic of the measured excitation (inputs); empty = output-only", "structural"),
-    _p("input_type", str, "SignalSample", "Message type of input_topic", "structural",
-       choices=SIGNAL_TYPES),
-    _p("imu_axes", str, "az",
-       "For sensor_msgs/Imu: comma-separated channels among ax,ay,az (linear acceleration) and "
-       "wx,wy,wz (angular velocity)", "structural"),
+    NP.signal_type_spec("output_type", "output_topic", "structural"),
+    _p("input_topic", str, "excitation",
+       "Topic of the measured excitation (inputs); empty = output-only; relative names follow "
+       "the node's namespace", "structural"),
+    NP.signal_type_spec("input_type", "input_topic", "structural"),
+    NP.imu_axes_spec("structural"),
     _p("qos", str, "sensor_data",
        "QoS of the subscriptions: 'sensor_data' (best effort) or 'reliable'", "structural",
-       choices=QOS_CHOICES),
+       choices=NP.QOS_CHOICES),
     _p("qos_depth", int, 1000, "History depth of the subscriptions [messages]", "structural",
        lo=1, hi=100000),
 )
@@ -161,30 +139,19 @@ def defaults() -> dict[str, Any]:
 
 def validate(name: str, value: Any) -> str:
     """Check one value against its spec; return '' if valid, else the reason."""
-    spec = SPECS.get(name)
-    if spec is None:
-        return f"unknown parameter '{name}'"
-    if spec.type is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    if not isinstance(value, spec.type) or (spec.type is int and isinstance(value, bool)):
-        return f"{name} must be of type {spec.type.__name__}, got {type(value).__name__}"
-    if spec.type is float and not math.isfinite(value):
-        return f"{name} must be finite, got {value}"
-    if spec.lo is not None and value < spec.lo:
-        return f"{name}={value} is below the minimum {spec.lo:g}{spec.unit and ' ' + spec.unit}"
-    if spec.hi is not None and value > spec.hi:
-        return f"{name}={value} is above the maximum {spec.hi:g}{spec.unit and ' ' + spec.unit}"
-    if spec.choices is not None and value not in spec.choices:
-        return f"{name}='{value}' is not one of {', '.join(spec.choices)}"
+    return check(SPECS, name, value) or _check_sysid(name, value)
+
+
+def _check_sysid(name: str, value: Any) -> str:
+    """This node's own checks of a value of the right type ('' if valid)."""
     if name == "imu_axes":
-        axes = parse_axes(value)
-        bad = [a for a in axes if a not in IMU_AXES]
-        if not axes or bad:
-            return f"imu_axes='{value}': use a comma-separated subset of {','.join(IMU_AXES)}"
+        return check_imu_axes(value)
     if name == "block_rows" and value == 1:
         return "block_rows=1 is too small: use 0 (auto) or at least 2"
-    if name in ("output_topic", "input_topic") and value and not value.startswith("/"):
-        return f"{name}='{value}' must be an absolute topic name (start with '/')"
+    if name == "output_topic" or (name == "input_topic" and value):
+        reason = topic_name_error(value)
+        if reason:
+            return f"{name}: {reason}"
     return ""
 
 
@@ -218,9 +185,7 @@ def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
     return ""
 
 
-def parse_axes(text: str) -> list[str]:
-    """'ax, az' -> ['ax', 'az']."""
-    return [a.strip() for a in str(text).split(",") if a.strip()]
+parse_axes = parse_list  # 'ax, az' -> ['ax', 'az']
 
 
 def structural_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:

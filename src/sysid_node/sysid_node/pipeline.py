@@ -71,6 +71,8 @@ class Pipeline:
         self.update_samples = 0  # samples of the incoming stream
         self.last_update_cost = math.nan  # [s per sample] of the latest piece
         self.records_made = 0
+        #: channel names per stream, from the signal messages (for ResidualSpectrum.channel_name)
+        self.channel_names: dict[str, list[str]] = {"output": [], "input": []}
         self._build_ingest()
 
     # ---- construction ----
@@ -174,11 +176,18 @@ class Pipeline:
     # ---- data in ----
     def push_output(self, stamps_ns: np.ndarray, values: np.ndarray,
                     names: tuple[str, ...] | None = None) -> None:
+        """A block of output samples; ``names``: the channel names the messages carry."""
+        self._names("output", names)
         self.ingest.push_output(stamps_ns, values, names)
 
     def push_input(self, stamps_ns: np.ndarray, values: np.ndarray,
                    names: tuple[str, ...] | None = None) -> None:
+        self._names("input", names)
         self.ingest.push_input(stamps_ns, values, names)
+
+    def _names(self, stream: str, names: tuple[str, ...] | None) -> None:
+        if names and list(names) != self.channel_names.get(stream):
+            self.set_channel_names(stream, list(names))
 
     def faults(self) -> list[tuple[int, str]]:
         """Input-side faults now: (HEALTH_* level, reason) of stuck, dead or clipped
@@ -198,6 +207,19 @@ class Pipeline:
             r.health, r.health_reason = merge_health(r.health, r.health_reason, faults)
             if r.health >= HEALTH_FAULT:
                 r.converged = False
+
+    def set_channel_names(self, stream: str, names: list[str]) -> None:
+        """Names of the channels of ``stream`` ('output' or 'input') as the messages give them;
+        used only to label what is published per channel (residual spectra)."""
+        self.channel_names[stream] = [str(n) for n in names]
+
+    def channel_name(self, stream: str, k: int, count: int) -> str:
+        """Name of channel ``k`` of ``count``: the message's, else ``y0``, ``y1``... (``u0``...
+        for inputs) when the messages name none or not as many."""
+        names = self.channel_names.get(stream, [])
+        if len(names) == count and names[k]:
+            return names[k]
+        return f"{'y' if stream == 'output' else 'u'}{k}"
 
     def step(self, flush: bool = False, realize_from_ns: int | None = None
              ) -> list[EstimateRecord]:
@@ -384,7 +406,8 @@ class Pipeline:
         sp = residual_spectrum(e, self.identification_rate)
         for k in range(e.shape[1]):
             self.spectra.append(SpectrumRecord(
-                stamp_ns, f"y{k}", sp.f, np.sqrt(sp.psd[:, k]), np.sqrt(sp.floor[:, k])))
+                stamp_ns, self.channel_name("output", k, e.shape[1]), sp.f,
+                np.sqrt(sp.psd[:, k]), np.sqrt(sp.floor[:, k])))
 
     def _record(self, stamp_ns: int) -> EstimateRecord:
         self._spectrum(stamp_ns)

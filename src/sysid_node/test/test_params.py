@@ -31,7 +31,9 @@ def test_every_parameter_has_description_type_and_valid_default():
         ("output_type", "PointCloud2", "not one of"),
         ("qos", "fast", "not one of"),
         ("imu_axes", "az,qq", "imu_axes"),
-        ("output_topic", "vibration", "absolute"),
+        ("output_topic", "vibration/", "trailing"),
+        ("output_topic", "", "empty"),
+        ("input_topic", "2nd/acc", "must start with a letter"),
         ("nonexistent", 1, "unknown parameter"),
     ],
 )
@@ -49,7 +51,7 @@ def test_cross_checks():
     assert "below damping_max" in P.validate_set({**v, "damping_min": 0.3, "damping_max": 0.2})
     assert "Nyquist" in P.validate_set({**v, "freq_max": 60.0}, sample_rate=100.0)
     assert P.validate_set({**v, "freq_max": 40.0}, sample_rate=100.0) == ""
-    assert "differ" in P.validate_set({**v, "input_topic": "/vibration"})
+    assert "differ" in P.validate_set({**v, "input_topic": "vibration"})
 
 
 def test_memory_time_constant_gives_rate_independent_memory():
@@ -92,7 +94,7 @@ def test_readme_table_and_config_file_show_the_defaults():
                              re.MULTILINE)
     }
     config = yaml.safe_load((pkg / "config" / "sysid_node.yaml").read_text())
-    config = config["sysid_node"]["ros__parameters"]
+    config = config["/**/sysid_node"]["ros__parameters"]
     for spec in P.PARAMS:
         assert rows.get(spec.name) == _shown(spec.default), f"README row of {spec.name}"
         assert config.get(spec.name) == spec.default, f"config/sysid_node.yaml {spec.name}"

@@ -15,7 +15,12 @@ from sysid_node.scenarios import faults as F
 from sysid_node.scenarios.bags import HIDDEN_SCENARIOS, HIDDEN_SEEDS, hidden_effect
 from sysid_node.scenarios.closedloop import DiscreteController, simulate_closed_loop
 from sysid_node.scenarios.effects import EFFECTS, add_mode, mode_blocks, simulate_cubic_stiffness
-from sysid_node.scenarios.structures import ModalStructure, combine, rigid_body_structure
+from sysid_node.scenarios.structures import (
+    ModalStructure,
+    combine,
+    rigid_body_structure,
+    scheduled_mode,
+)
 from sysid_node.scenarios.timevarying import simulate_piecewise, simulate_scheduled
 
 from sysid_node import bag_io
@@ -60,6 +65,15 @@ def test_piecewise_and_scheduled_match_a_per_sample_recursion():
     assert np.allclose(y, ref, atol=1e-9 * np.abs(ref).max())
     y2, x_end = simulate_piecewise(lambda k: systems[k], keys, u, fs)
     assert np.allclose(y2, y) and x_end.shape == (4,)
+
+
+def test_scheduled_mode_follows_the_schedule():
+    st = ModalStructure([3.0, 8.0], [0.02, 0.01], [[1.0], [0.5]], [[1.0, 1.0]])
+    system_at = scheduled_mode(st, 1, lambda v: 8.0 + 0.1 * (v - 50.0), lambda v: 0.01)
+    assert [round(f, 6) for f, _ in system_at(60.0).modes()] == [3.0, 9.0]
+    u = np.random.default_rng(11).standard_normal((300, 1))
+    y = simulate_scheduled(system_at, np.full(300, 60.0), u, 100.0, resolution=0.5)
+    np.testing.assert_allclose(y, simulate(system_at(60.0), u, 100.0), atol=1e-12)
 
 
 def test_closed_loop_matches_a_per_sample_loop():

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.lti import simulate
 from .excitations import ambient, excitation
-from .structures import OUTPUT_KINDS, ModalStructure
+from .structures import OUTPUT_KINDS, ModalStructure, scheduled_mode
 from .timevarying import simulate_scheduled, simulate_switching
 from .truth import TrueMode, modes_at
 
@@ -285,7 +285,7 @@ def drifting_mode(
     rigid = ModalStructure([f_rb], [z_rb], [[1.0]], shapes[:, 1:], kinds=("rigid_body",))
 
     f_t = np.interp(t, [0.0, ta, tb, duration_s], [f0, f0, f1, f1])
-    y_mode = simulate_scheduled(lambda f: mode.with_mode(0, frequency_hz=f).system(), f_t, u, fs,
+    y_mode = simulate_scheduled(scheduled_mode(mode, 0, lambda f: f), f_t, u, fs,
                                 resolution=resolution * zeta * min(f0, f1))
     y_rigid = rigid.simulate(u, fs)
     y_mode /= np.sqrt(np.mean(y_mode**2, axis=0)).max()

@@ -25,7 +25,7 @@ from . import effects as E
 from .closedloop import DiscreteController, loop_is_stable, simulate_closed_loop
 from .draw import _log_uniform, draw_rate, draw_structure
 from .excitations import KINDS, excitation
-from .structures import ModalStructure
+from .structures import ModalStructure, scheduled_mode
 from .timevarying import simulate_scheduled
 from .truth import TrueMode
 
@@ -241,9 +241,8 @@ def draw_hidden_effect(
         def size_of(rel: float):
             slope = rel * f_i / span
             freq = E.linear_schedule(f_i, slope, v_ref)
-            y_lpv = simulate_scheduled(
-                lambda val: mode.with_mode(0, frequency_hz=float(freq(val))).system(),
-                v, b.u + b.w, fs, resolution=max(span / 400, 0.05 * zeta * f_i / slope))
+            y_lpv = simulate_scheduled(scheduled_mode(mode, 0, freq), v, b.u + b.w, fs,
+                                       resolution=max(span / 400, 0.05 * zeta * f_i / slope))
             return b.size(y_lpv - y_i), (slope, y_lpv)
 
         rel, _, (slope, y_lpv) = _secant(size_of, 0.05, target, 0.002, 0.3, steps=4)

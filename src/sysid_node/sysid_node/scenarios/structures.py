@@ -15,6 +15,7 @@ scaling a mode's contribution is then a multiplication.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -171,3 +172,20 @@ def combine(*structures: ModalStructure) -> ModalStructure:
         first.output,
         tuple(k for s in structures for k in s.kinds),
     )
+
+
+def scheduled_mode(
+    structure: ModalStructure,
+    mode: int,
+    frequency_of: Callable[[float], float],
+    damping_of: Callable[[float], float] | None = None,
+) -> Callable[[float], ContinuousSystem]:
+    """LPV structure (paper eq. (2)): ``system_at(value)`` with mode ``mode`` at
+    ``frequency_of(value)`` [Hz] (and ``damping_of(value)``) of a scheduling value such as
+    airspeed or rotor speed; simulate it with ``timevarying.simulate_scheduled``."""
+
+    def system_at(value: float) -> ContinuousSystem:
+        z = None if damping_of is None else float(damping_of(value))
+        return structure.with_mode(mode, float(frequency_of(value)), z).system()
+
+    return system_at

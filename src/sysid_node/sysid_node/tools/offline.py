@@ -1,13 +1,15 @@
 """``offline``: the node's processing over a bag, without DDS, as fast as possible.
 
-    ros2 run sysid_node offline --bag IN --output OUT [--params-file FILE]
+    ros2 run sysid_node offline --bag IN --output OUT [--params-file FILE] [--report OUT.html]
 
 Reads the output (and input) topic messages of a bag in log-time order, converts each message
 with the node's own conversion and feeds :class:`sysid_node.pipeline.Pipeline`, exactly as the
 node does; publication instants come from the sample stamps, so the run is deterministic and
 matches a live replay. Writes ``/modal_estimate`` (``sysid_msgs/msg/ModalEstimate``) into the
 rosbag2 bag ``OUT``, one CSV row per mode per estimate to ``OUT.csv`` and a JSON summary to
-``OUT.json``. The parameter file is the node's (``sysid_node: ros__parameters: ...``).
+``OUT.json``; ``--report`` writes an HTML page (modes against time, with the truth when the bag
+has a ``<bag>.truth.json`` beside it, the final modes and the summary as tables). The parameter
+file is the node's (``sysid_node: ros__parameters: ...``).
 A bad bag or parameter file ends the run with a one-line reason and exit status 2.
 """
 
@@ -28,9 +30,10 @@ from sysid_node import msg_convert as mc
 from sysid_node import params as P
 from sysid_node.pipeline import Pipeline
 from sysid_node.records import EstimateRecord
+from sysid_node.topics import resolve
 
 NODE_NAME = "sysid_node"
-ESTIMATE_TOPIC = "/modal_estimate"
+ESTIMATE_TOPIC = "modal_estimate"  # relative, as the node publishes it
 ESTIMATE_TYPE = "sysid_msgs/msg/ModalEstimate"
 TYPE_NAMES = {
     "sysid_msgs/msg/SignalSample": "SignalSample",
@@ -99,15 +102,20 @@ def run(
     values: dict[str, Any] | None = None,
     progress: bool = False,
     log=None,
+    namespace: str = "/",
 ) -> tuple[list[EstimateRecord], Pipeline, dict[str, Any]]:
-    """Run the pipeline over ``bag``; return the records, the pipeline and run information."""
+    """Run the pipeline over ``bag``; return the records, the pipeline and run information.
+
+    Relative topic names (the defaults, ``vibration``) are looked up in the bag as a node in
+    ``namespace`` resolves them (``/vibration`` at the root)."""
     from sysid_node import bag_io
 
     values = dict(values or {})
     pipeline = Pipeline(values, log=log)
     v = pipeline.values
     topics = _bag_topics(bag)
-    out_topic, in_topic = v["output_topic"], v["input_topic"]
+    out_topic = resolve(v["output_topic"], namespace)
+    in_topic = resolve(v["input_topic"], namespace) if v["input_topic"] else ""
     if out_topic not in topics:
         raise OfflineError(
             f"no topic {out_topic} in bag {bag}; available: {', '.join(sorted(topics)) or '-'}"
@@ -149,7 +157,10 @@ def run(
         except (ValueError, TypeError, AttributeError) as err:  # one bad message: counted
             pipeline.ingest.reject(stream, 1, "unreadable", f"{stream}: unreadable message: {err}")
             continue
-        batch.append((stream, stamps, vals, mc.channel_names(msg)))
+        names = mc.channel_names(msg, kinds[conn.topic], axes)
+        if names != pipeline.channel_names[stream]:
+            pipeline.set_channel_names(stream, names)
+        batch.append((stream, stamps, vals, tuple(names) or None))
         n += 1
         if len(batch) >= 64:
             records += _process(pipeline, batch)
@@ -233,18 +244,19 @@ def write_csv(path: Path, records: list[EstimateRecord]) -> None:
                 )
 
 
-def write_bag(path: Path, records: list[EstimateRecord]) -> None:
+def write_bag(path: Path, records: list[EstimateRecord], namespace: str = "/") -> None:
     from sysid_node import bag_io
 
     ts = bag_io.typestore()
+    topic = resolve(ESTIMATE_TOPIC, namespace)
     with bag_io.BagWriter(path) as bag:
         bag.add_topic(
-            ESTIMATE_TOPIC,
+            topic,
             ESTIMATE_TYPE,
             [bag_io.make_qos(reliable=True, transient_local=True, depth=1)],
         )
         for r in records:
-            bag.write(ESTIMATE_TOPIC, r.stamp_ns, mc.estimate_rosbags(r, ts))
+            bag.write(topic, r.stamp_ns, mc.estimate_rosbags(r, ts))
 
 
 def summary(records: list[EstimateRecord], pipeline: Pipeline, info: dict) -> dict[str, Any]:
@@ -279,7 +291,15 @@ def main(argv: list[str] | None = None) -> int:
         help="output bag with /modal_estimate; OUT.csv and OUT.json are written too",
     )
     ap.add_argument("--params-file", type=Path, help="the node's YAML parameter file")
+    ap.add_argument(
+        "--namespace",
+        default="/",
+        metavar="NS",
+        help="resolve relative topic names as a node in NS does (default /: vibration -> "
+        "/vibration; left_wing: /left_wing/vibration)",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar, no log lines")
+    ap.add_argument("--report", type=Path, help="HTML report (modes against time, tables)")
     args = ap.parse_args(argv)
     from sysid_node.bag_io import BagError
 
@@ -293,19 +313,24 @@ def main(argv: list[str] | None = None) -> int:
             raise OfflineError(f"output already exists: {args.output}")
         if not args.output.parent.is_dir():
             raise OfflineError(f"output directory does not exist: {args.output.parent}")
-        records, pipeline, info = run(args.bag, values, progress=not args.quiet, log=log)
+        if args.report and not args.report.parent.is_dir():
+            raise OfflineError(f"report directory does not exist: {args.report.parent}")
+        records, pipeline, info = run(
+            args.bag, values, progress=not args.quiet, log=log, namespace=args.namespace
+        )
         if not records:
             raise OfflineError(
                 f"no estimate could be made from {args.bag} "
                 f"(counters: {pipeline.counters or 'no samples'})"
             )
-        write_bag(args.output, records)
+        write_bag(args.output, records, args.namespace)
         csv_path = args.output.with_name(args.output.name + ".csv")
         json_path = args.output.with_name(args.output.name + ".json")
         write_csv(csv_path, records)
-        json_path.write_text(
-            json.dumps(summary(records, pipeline, info), indent=2, default=_json_default)
-        )
+        summ = summary(records, pipeline, info)
+        json_path.write_text(json.dumps(summ, indent=2, default=_json_default))
+        if args.report:
+            write_report(args.report, args.bag, records, summ)
     except (OfflineError, BagError, ValueError) as err:
         print(f"offline: error: {err}", file=sys.stderr)
         return 2
@@ -319,6 +344,30 @@ def main(argv: list[str] | None = None) -> int:
         f"{info['wall_time_s']:.2f} s -> {args.output} (+ .csv, .json); last: {freqs}"
     )
     return 0
+
+
+def write_report(path: Path, bag: Path, records: list[EstimateRecord], summ: dict) -> Path:
+    """HTML page: modes against time (truth overlaid when ``<bag>.truth.json`` exists), the
+    final modes and the run's summary as tables."""
+    from sysid_node.report import Page, figure, mode_points, mode_table, plot_mode_tracks
+    from sysid_node.scenarios.truth import TrueMode
+
+    truth_file = bag.parent / f"{bag.name}.truth.json"
+    truth = json.loads(truth_file.read_text()) if truth_file.exists() else {}
+    t0 = truth.get("start_time_s", records[0].stamp_ns * 1e-9)
+    modes = [TrueMode(m["name"], m.get("kind", "structural"), m["t_s"], m["frequency_hz"],
+                      m["damping_ratio"]) for m in truth.get("modes", [])]
+    points = mode_points(records, t0)
+    page = Page(f"offline: {bag.name}")
+    fig, ax = figure(2, 1, 10, 3.2, sharex=True)
+    plot_mode_tracks(ax[0, 0], ax[1, 0], points, truth=modes)
+    ax[0, 0].set_title("Identified modes (2-sigma band; faint: tentative or lost"
+                       + ("; dashed: truth)" if modes else ")"))
+    page.heading("Modes against time").figure(fig)
+    page.heading("Final estimate").table(*mode_table(points))
+    summ = {k: v for k, v in summ.items() if k != "final"}
+    page.heading("Run").summary(summ)
+    return page.write(path)
 
 
 def _json_default(x: Any) -> Any:

@@ -1,6 +1,7 @@
 """record: write DDS topics into a rosbag2 until stopped (stand-in for ros2 bag record).
 
     ros2 run sysid_node record /modal_estimate /vibration -o out/bag [--duration 30]
+    ros2 run sysid_node record modal_estimate vibration -o out/left --ros-args -r __ns:=/left_wing
 
 Subscribes with ``raw=True`` and writes the serialized bytes it receives, so the bag is
 byte-exact. Types come from the ROS graph (``--type TOPIC=pkg/msg/Name`` overrides, and lets a
@@ -10,19 +11,20 @@ subscription, best-effort ones a best-effort subscription, others (and a ``--typ
 no publisher yet) reliable volatile. The offered QoS is stored in the bag. DDS pads serialized
 messages to a multiple of 4 bytes, so a recorded message may end in up to 3 more zero bytes
 than the one in a bag written by rosbags. Stops on SIGINT/SIGTERM or after ``--duration`` and
-closes the bag cleanly.
+closes the bag cleanly. Relative topic names are resolved in the recorder's namespace
+(``--ros-args -r __ns:=/left_wing``: ``vibration`` is ``/left_wing/vibration``); the bag holds
+the fully qualified names.
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
 
 from sysid_node.bag_io import STORAGES, BagError, BagWriter, make_qos
-from sysid_node.tools import ToolError, fail, msg_class
+from sysid_node.tools import ToolError, msg_class, run_tool, start_node, stop_node
 
 PROG = "record"
 
@@ -71,17 +73,11 @@ def run(args: argparse.Namespace) -> int:
 
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
 
-    stop = {"flag": False}
-
-    def on_signal(signum, frame) -> None:
-        stop["flag"] = True
-
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node("record")
+    node, stop = start_node("record", args.ros_args)
+    # fully qualified names (namespace and remapping applied): what the graph and the bag use
+    args.topics = list(dict.fromkeys(node.resolve_topic_name(t) for t in args.topics))
+    args.types = {node.resolve_topic_name(t): v for t, v in args.types.items()}
     bag = BagWriter(args.output, storage=args.storage).open()
     subs = {}
 
@@ -145,9 +141,7 @@ def run(args: argparse.Namespace) -> int:
             rclpy.spin_once(node, timeout_sec=0.0)
     finally:
         bag.close()
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        stop_node(node)
     never = [t for t in args.topics if t not in subs]
     if not args.quiet:
         counts = ", ".join(f"{t} {bag.counts.get(t, 0)}" for t in args.topics)
@@ -158,16 +152,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        args = _parse(argv)
-    except SystemExit as exit_:
-        return int(exit_.code or 0)
-    try:
-        return run(args)
-    except (BagError, ToolError) as err:
-        return fail(PROG, str(err))
-    except Exception as err:  # a CLI ends with one line, never a traceback
-        return fail(PROG, f"{type(err).__name__}: {err}")
+    return run_tool(PROG, _parse, run, argv)
 
 
 if __name__ == "__main__":

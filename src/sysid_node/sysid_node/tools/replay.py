@@ -1,24 +1,29 @@
 """replay: publish a rosbag2's messages over DDS at the recorded pace (stand-in for ros2 bag play).
 
     ros2 run sysid_node replay BAG [--rate 2] [--topics /vibration /excitation] [--clock] [--loop]
+        [--remap /vibration:=/left_wing/vibration ...] [--ros-args ...]
 
 The raw CDR bytes of each message are published as they are (byte-exact, no re-encoding) with
 the rclpy class of the recorded type. Pacing follows the bag's log timestamps scaled by
 ``--rate``. Before the first message the tool waits (bounded by ``--wait-subscribers``) until
 every replayed topic has a subscriber, and at the end until reliable subscribers acknowledged
 everything, so that a replay into a running node loses nothing at either end.
+
+A bag holds fully qualified topic names, so a namespace does not move them (as with
+``ros2 bag play``): ``--remap FROM:=TO`` publishes a recorded topic under another name, e.g. into
+one wing's namespace.
 """
 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
 
 from sysid_node.bag_io import BagError, iter_messages, list_topics, open_bag
-from sysid_node.tools import ToolError, fail, msg_class
+from sysid_node.tools import msg_class, run_tool, start_node, stop_node
+from sysid_node.topics import topic_name_error
 
 PROG = "replay"
 
@@ -45,8 +50,22 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         metavar="S",
         help="wait up to S seconds for a subscriber on every topic before starting (default 10)",
     )
+    ap.add_argument(
+        "--remap",
+        nargs="+",
+        default=[],
+        metavar="FROM:=TO",
+        help="publish bag topic FROM as TO (as ros2 bag play --remap)",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)
+    args.remaps = {}
+    for item in args.remap:
+        src, sep, dst = item.partition(":=")
+        reason = topic_name_error(dst) if sep and src else "expected FROM:=TO"
+        if reason:
+            ap.error(f"--remap {item}: {reason}")
+        args.remaps[src] = dst
     if args.bag is None:
         args.bag = args.bag_pos
     if args.bag is None:
@@ -83,7 +102,6 @@ def run(args: argparse.Namespace) -> int:
     classes = {t: msg_class(available[t][0]) for t in topics}
     latched = _transient_local(args.bag)
 
-    import rclpy
     from rclpy.duration import Duration
     from rclpy.qos import (
         DurabilityPolicy,
@@ -92,17 +110,8 @@ def run(args: argparse.Namespace) -> int:
         ReliabilityPolicy,
         qos_profile_sensor_data,
     )
-    from rclpy.signals import SignalHandlerOptions
 
-    stop = {"flag": False}
-
-    def on_signal(signum, frame) -> None:
-        stop["flag"] = True
-
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = rclpy.create_node("replay")
+    node, stop = start_node("replay", args.ros_args)
     try:
         pubs = {}
         for t in topics:
@@ -117,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
                     if t in latched
                     else DurabilityPolicy.VOLATILE,
                 )
-            pubs[t] = node.create_publisher(classes[t], t, qos)
+            pubs[t] = node.create_publisher(classes[t], args.remaps.get(t, t), qos)
         clock_pub = None
         if args.clock:
             from rosgraph_msgs.msg import Clock
@@ -130,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
             if all(p.get_subscription_count() > 0 for p in pubs.values()):
                 break
             time.sleep(0.05)
-        lonely = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        lonely = [p.topic_name for p in pubs.values() if p.get_subscription_count() == 0]
         if lonely and not args.quiet:
             print(f"[{PROG}] no subscriber on {', '.join(lonely)}; replaying anyway", flush=True)
         if not lonely:
@@ -162,26 +171,15 @@ def run(args: argparse.Namespace) -> int:
                     p.wait_for_all_acked(Duration(seconds=5))
         took = time.monotonic() - t_start
         if not args.quiet:
-            counts = ", ".join(f"{t} {n}" for t, n in sent.items())
+            counts = ", ".join(f"{pubs[t].topic_name} {n}" for t, n in sent.items())
             print(f"[{PROG}] published {sum(sent.values())} messages in {took:.2f} s ({counts})")
     finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        stop_node(node)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        args = _parse(argv)
-    except SystemExit as exit_:
-        return int(exit_.code or 0)
-    try:
-        return run(args)
-    except (BagError, ToolError) as err:
-        return fail(PROG, str(err))
-    except Exception as err:  # a CLI ends with one line, never a traceback
-        return fail(PROG, f"{type(err).__name__}: {err}")
+    return run_tool(PROG, _parse, run, argv)
 
 
 if __name__ == "__main__":

@@ -1,31 +1,20 @@
-"""HTML report of a validation run: figures (matplotlib, embedded as base64 PNG) and tables."""
+"""HTML report of a validation run: figures and tables (``sysid_node.report`` page)."""
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 import json
 
 import numpy as np
 
+from ..report import Page
 from .augment import FittedModel
 from .data import ValidationData
 from .diagnose import Assessment, Hypothesis, _jsonable
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return "<img src='data:image/png;base64," + base64.b64encode(buf.getvalue()).decode() + "'/>"
-
-
 def _figures(
     data: ValidationData, n_est: int, before: Assessment, after: Assessment | None, label: str
-) -> list[str]:
+) -> list:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,7 +40,7 @@ def _figures(
         ax.legend(fontsize=7, loc="upper right")
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle("Measured vs model on the validation part (first 10 s)")
-    figs.append(_png(fig))
+    figs.append(fig)
     # error over time
     fig, ax = plt.subplots(figsize=(10, 2.8))
     tw, ew = before.windows
@@ -63,7 +52,7 @@ def _figures(
     ax.set_xlabel("time [s]")
     ax.set_ylabel("residual RMS per window")
     ax.legend(fontsize=7)
-    figs.append(_png(fig))
+    figs.append(fig)
     # residual spectrum
     fig, axes = plt.subplots(l, 1, figsize=(10, 2.8 * l), squeeze=False)
     for c in range(l):
@@ -79,7 +68,7 @@ def _figures(
         ax.legend(fontsize=7)
     axes[-1, 0].set_xlabel("frequency [Hz]")
     fig.suptitle("Residual spectrum against its white noise floor")
-    figs.append(_png(fig))
+    figs.append(fig)
     # whiteness and cross-correlation
     fig, axes = plt.subplots(1, 2, figsize=(10, 2.8))
     for a, col, name in ((before, "r", "before"), (after, "b", "after")):
@@ -97,7 +86,7 @@ def _figures(
     axes[0].set_title("residual autocorrelation (99 % bounds)", fontsize=9)
     axes[1].set_title("residual-input cross-correlation (lag > 0: past input)", fontsize=9)
     axes[0].legend(fontsize=7)
-    figs.append(_png(fig))
+    figs.append(fig)
     return figs
 
 
@@ -115,42 +104,23 @@ def write_report(
     """Write the HTML report (measured vs model, error over time, residual spectra, ranking)."""
     label = "+" + "+".join(added) if added else ""
     figs = _figures(data, n_est, before, after if added else None, label)
-    rows = "".join(
-        f"<tr><td>{k}</td><td>{'*' if h.significant else ''}{html.escape(h.effect)}</td>"
-        f"<td>{h.score:.2f}</td><td>{html.escape(json.dumps(_jsonable(h.parameters)))}</td>"
-        f"<td>{html.escape(h.evidence)}</td></tr>"
-        for k, h in enumerate(hyps, 1)
-    )
-
-    def summ(a: Assessment) -> str:
-        s = a.summary()
-        return "".join(
-            f"<td>{html.escape(str(s[k]))}</td>"
-            for k in (
-                "fit_percent",
-                "fit_free_run_percent",
-                "residual_rms",
-                "whiteness_p",
-                "xcorr_p_past",
-                "xcorr_p_future",
-            )
-        )
-
-    table = "<tr><td>before</td>" + summ(before) + "</tr>"
+    page = Page("Model against measurement")
+    page.text(f"{data.n} samples at {data.fs:.4g} Hz; estimation {n_est}, validation "
+              f"{data.n - n_est}; outputs {data.output_names}, inputs {data.input_names}, "
+              f"candidate signals {sorted(data.signals)}; model order {base.order}.")
+    keys = ("fit_percent", "fit_free_run_percent", "residual_rms", "whiteness_p",
+            "xcorr_p_past", "xcorr_p_future")
+    rows = [["before", *(before.summary()[k] for k in keys)]]
     if added:
-        table += f"<tr><td>after {html.escape(label)}</td>" + summ(after) + "</tr>"
-    doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>validate</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}td,th{{border:1px solid #ccc;
-padding:3px;font-size:12px;vertical-align:top}}table{{border-collapse:collapse}}</style></head>
-<body><h1>Model against measurement</h1>
-<p>{data.n} samples at {data.fs:.4g} Hz; estimation {n_est}, validation {data.n - n_est};
-outputs {html.escape(str(data.output_names))}, inputs {html.escape(str(data.input_names))},
-candidate signals {html.escape(str(sorted(data.signals)))}; model order {base.order}.</p>
-<h2>Before / after</h2><table><tr><th>model</th><th>fit 1-step %</th><th>fit free run %</th>
-<th>residual RMS</th><th>whiteness p</th><th>xcorr p (past)</th><th>xcorr p (future)</th></tr>
-{table}</table>
-<h2>Which effect is missing</h2><table><tr><th>#</th><th>effect</th><th>score</th>
-<th>parameters</th><th>evidence</th></tr>{rows}</table>
-<h2>Where the model fails</h2>{"".join(figs)}</body></html>"""
-    with open(path, "w") as fh:
-        fh.write(doc)
+        rows.append([f"after {label}", *(after.summary()[k] for k in keys)])
+    page.heading("Before / after").table(
+        ["model", "fit 1-step %", "fit free run %", "residual RMS", "whiteness p",
+         "xcorr p (past)", "xcorr p (future)"], rows)
+    page.heading("Which effect is missing").table(
+        ["#", "effect", "score", "parameters", "evidence"],
+        ([k, ("*" if h.significant else "") + h.effect, h.score,
+          json.dumps(_jsonable(h.parameters)), h.evidence] for k, h in enumerate(hyps, 1)))
+    page.heading("Where the model fails")
+    for fig in figs:
+        page.figure(fig, dpi=90)
+    page.write(path)
