@@ -296,7 +296,10 @@ class WorkerLink:
         if now - oldest <= limit:
             return
         dropped: Counter[str] = Counter()
-        while self._pending and now - self._pending[0].arrived > 0.5 * limit:
+        # keep the newest half of max_backlog of data (by stamps): after a long stall (a
+        # worker restart) the newest data are still identified
+        keep_from = (self.newest_ns or 0) - int(0.5 * limit * 1e9)
+        while self._pending and self._pending[0].stamps.max() < keep_from:
             p = self._pending.popleft()
             dropped[p.stream] += p.messages
             dropped[p.stream + "_samples"] += len(p.stamps)

@@ -111,7 +111,7 @@ def test_oldest_data_shed_when_too_far_behind(paper):
         link._in_flight = {-1: time.monotonic(), -2: time.monotonic()}  # no credit: held
         link.submit("output", [(stamps[:100], y[:100])], 10)
         time.sleep(0.3)
-        link.submit("output", [(stamps[100:200], y[100:200])], 10)
+        link.submit("output", [(stamps[100:200], y[100:200])], 10)  # 1 s of data newer
         link._in_flight = {}
         link._send_waiting()
         assert link.counters["output_shed"] == 10 and link.counters["output_shed_samples"] == 100
