@@ -32,7 +32,7 @@ import yaml
 from sysid_node import bag_io
 
 REPO = Path(__file__).resolve().parents[1]
-DISTROS = ("humble", "iron", "jazzy", "kilted", "rolling")
+DISTROS = bag_io.BAG_READERS
 QOS_KEYS = ("history", "depth", "reliability", "durability", "deadline", "lifespan",
             "liveliness", "liveliness_lease_duration", "avoid_ros_namespace_conventions")
 COMMITTED = sorted(p.parent for p in (REPO / "bags").rglob("metadata.yaml"))

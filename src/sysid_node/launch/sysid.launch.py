@@ -64,7 +64,7 @@ def generate_launch_description() -> LaunchDescription:
             OpaqueFunction(function=note_given),
             DeclareLaunchArgument(
                 "params_file", default_value=default_params,
-                description="YAML parameter file (sysid_node: ros__parameters: ...)",
+                description="YAML parameter file (/**/sysid_node: ros__parameters: ...)",
             ),
             DeclareLaunchArgument(
                 "namespace", default_value="",

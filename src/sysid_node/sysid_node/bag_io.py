@@ -323,7 +323,9 @@ def make_qos(reliable: bool = True, transient_local: bool = False, depth: int = 
 #: profiles with integer policies, ``''`` when none) is therefore read by Humble, Iron, Jazzy,
 #: Kilted and Rolling alike (test/test_bag_metadata.py checks every bag against those rules).
 BAG_VERSION = 8
-SUPPORTED_DISTROS = ("humble", "iron", "jazzy", "kilted", "rolling")
+#: rosbag2 readers a bag written here is checked against (the packages themselves support Humble,
+#: Jazzy and Kilted; Iron is end-of-life but its reader takes the same bags).
+BAG_READERS = ("humble", "iron", "jazzy", "kilted", "rolling")
 
 
 class BagWriter:

@@ -211,6 +211,31 @@ def test_topic_selection_and_record_duration(tmp_path: Path) -> None:
     assert bag_io.list_topics(out)["/vibration"][1] == 0
 
 
+def test_namespaced_record_and_remapped_replay(tmp_path: Path) -> None:
+    """record resolves relative names in its namespace (--ros-args -r __ns:=/left_wing) and
+    stores the full names; replay --remap publishes a bag topic under another name."""
+    src = _source_bag(tmp_path / "src")
+    out = tmp_path / "rec"
+    rec = _start(
+        ["sysid_node.tools.record", "vibration", "--type", "vibration=sysid_msgs/SignalSample",
+         "-o", str(out), "--duration", "7", "--ros-args", "-r", "__ns:=/left_wing"],
+        tmp_path / "record.log",
+    )
+    try:
+        rep = _run(["sysid_node.tools.replay", "--bag", str(src), "--rate", "4", "--topics",
+                    "/vibration", "--remap", "/vibration:=/left_wing/vibration"])
+        assert rep.returncode == 0, rep.stderr
+        assert "/left_wing/vibration 200" in rep.stdout
+        rec.wait(timeout=20)
+    finally:
+        _stop(rec)
+    assert rec.returncode == 0, (tmp_path / "record.log").read_text()
+    assert list(bag_io.list_topics(out)) == ["/left_wing/vibration"]
+    assert _raw(out, "/left_wing/vibration") == _raw(src, "/vibration")
+    bad = _run(["sysid_node.tools.replay", "--bag", str(src), "--remap", "/vibration:=a//b"])
+    assert bad.returncode != 0 and "empty name token" in bad.stderr
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

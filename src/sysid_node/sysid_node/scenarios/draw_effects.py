@@ -245,7 +245,7 @@ def draw_hidden_effect(
                                        resolution=max(span / 400, 0.05 * zeta * f_i / slope))
             return b.size(y_lpv - y_i), (slope, y_lpv)
 
-        rel, _, (slope, y_lpv) = _secant(size_of, 0.05, target, 0.002, 0.3, steps=4)
+        _, _, (slope, y_lpv) = _secant(size_of, 0.05, target, 0.002, 0.3, steps=4)
         y = b.y - y_i + y_lpv
         ts = _slow_times(t)
         signals["/airspeed"] = (ts, np.interp(ts, knots_t, knots_v))
