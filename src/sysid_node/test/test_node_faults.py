@@ -25,12 +25,7 @@ start_node, stop_node = _tn.start_node, _tn.stop_node
 pytestmark = [pytest.mark.dds, pytest.mark.slow]
 
 
-@pytest.fixture
-def harness():
-    _env()
-    h = Harness()
-    yield h
-    h.close()
+harness = _tn.harness  # the same fixture
 
 
 def _diag(h: Harness, pred, timeout: float) -> dict[str, str] | None:
