@@ -197,7 +197,25 @@ class SysidNode(Node):
         return msgs
 
     def _on_burst(self, stream: str, kind: str, axes: list[str], first: Any) -> None:
-        msgs = self._take_burst(stream, first)
+        """One wake-up takes what waits on every data topic, this one first: the streams go
+        to the worker together (an output burst covering seconds while the input waits in
+        its queue would look like a stopped input)."""
+        self._convert(stream, kind, axes, self._take_burst(stream, first))
+        v = self.values
+        for other in ("output", "input"):
+            sub = self._subs.get(other)
+            if other == stream or sub is None:
+                continue
+            try:
+                with sub.handle:
+                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+            except Exception:
+                continue
+            if got is not None:
+                self._convert(other, v[f"{other}_type"], axes,
+                              self._take_burst(other, got[0]))
+
+    def _convert(self, stream: str, kind: str, axes: list[str], msgs: list[Any]) -> None:
         blocks, errors = mc.burst_to_blocks(msgs, kind, axes)
         if errors:
             self._arrivals[f"{stream}_unreadable"] += len(errors)
@@ -283,8 +301,8 @@ class SysidNode(Node):
             faults.append((r.health, r.health_reason))
         backlog = self.worker.backlog_s()
         kv: dict[str, Any] = {
-            "output_topic": values["output_topic"],
-            "input_topic": values["input_topic"] if mode == "io" else "",
+            "output_topic": self._topic("output"),
+            "input_topic": self._topic("input") if mode == "io" else "",
             "mode": mode,
             "health": D.HEALTH_NAMES[max((lv for lv, _ in faults), default=0)],
             "health_reason": "; ".join(why for lv, why in faults if lv > 0),
@@ -321,8 +339,9 @@ class SysidNode(Node):
         level, message = D.summary(kv, bad_now - bad_before, stale,
                                    bool(r and r.converged), faults)
         status = DiagnosticStatus(
-            level=bytes([level]), name="sysid_node: identification", message=message,
-            hardware_id=values["output_topic"],
+            level=bytes([level]), message=message,
+            name=f"{self.get_fully_qualified_name().lstrip('/')}: identification",
+            hardware_id=self._topic("output") or values["output_topic"],
             values=[KeyValue(key=k, value=D.fmt(v)) for k, v in kv.items() if v is not None],
         )
         arr = DiagnosticArray(status=[status])
@@ -332,6 +351,11 @@ class SysidNode(Node):
         self._diag_prev_t = now
         self._say.flush()
         self._warn.flush()
+
+    def _topic(self, stream: str) -> str:
+        """The resolved name (namespace, remapping) of a stream's topic, '' if none."""
+        sub = self._subs.get(stream)
+        return sub.topic_name if sub is not None else ""
 
     def stop(self) -> None:
         """Stop the receiver thread and the worker process (within about 3 s)."""
