@@ -130,8 +130,9 @@ def main(argv: list[str] | None = None) -> int:
         recorded = args.out / "recorded"
         if not args.report_only:
             recorded = run_pipeline(args.bag, args.out, args.params_file, args.rate)
-        result = analyse(args.bag, recorded)
+        result = analyse(args.bag, recorded, args.params_file)
         print(result.table())
+        print(result.peak_table())
         report = write_report(result, args.out / "report.html")
         (args.out / "summary.json").write_text(json.dumps(result.summary(), indent=2))
         print(f"[demo] report: {report}  ({time.monotonic() - t0:.0f} s)")

@@ -12,7 +12,9 @@ from scipy import signal as sps
 from sysid_node.bag_io import read_signals, typestore
 
 MODE_STATUS = {0: "tentative", 1: "tracked", 2: "lost"}
-NOTCH_STATE = {0: "tracking", 1: "holding", 2: "parked", 3: "disabled"}
+NOTCH_STATE = {0: "tracking", 1: "holding", 2: "parked", 3: "disabled", 4: "predicted"}
+BANK_STATE = {0: "tracking", 1: "holding", 2: "predicted", 3: "fallback"}
+REQUIRED_DB = 15.0  # the notch node's default peak_reduction
 
 
 @dataclass
@@ -54,22 +56,57 @@ class DemoResult:
             t += step
         return "\n".join(lines)
 
-    def attenuation(self) -> list[dict]:
-        """Spectral attenuation through the bank at each final notch centre (second half)."""
-        if self.y_in is None or self.y_out is None or not self.banks:
+    def peak_reduction(self, settle_s: float = 5.0) -> list[dict]:
+        """Per true structural mode (the bag's truth): how far each /notch_bank message's
+        sections lower the mode's resonance peak (mode x bank frequency response), over the
+        messages from ``settle_s`` after the mode appears (or the first estimate) to the end."""
+        if self.truth is None or not self.banks or self.t_in is None:
             return []
-        fs = 1.0 / np.median(np.diff(self.t_in))
-        half = self.t_in[-1] - 0.5 * (self.t_in[-1] - self.t_in[0])
-        a = self.y_in[self.t_in >= half, 0]
-        b = self.y_out[self.t_out >= half, 0]
-        n = min(a.size, b.size)
-        f, pa = sps.welch(a[:n], fs=fs, nperseg=min(1024, n))
-        _, pb = sps.welch(b[:n], fs=fs, nperseg=min(1024, n))
+        from notch_filter_node import resonance as R
+
+        fs = 1.0 / float(np.median(np.diff(self.t_in)))
+        t0 = (self.estimates[0]["t"] if self.estimates else 0.0) + settle_s
         out = []
-        for nt in self.banks[-1]["notches"]:
-            k = int(np.argmin(np.abs(f - nt[2])))
-            out.append({"centre_hz": nt[2], "attenuation_db": float(10 * np.log10(pa[k] / pb[k]))})
+        for m in self.truth["modes"]:
+            if m.get("kind", "structural") != "structural":
+                continue
+            tk, fk, zk = (np.array(m[k]) for k in ("t_s", "frequency_hz", "damping_ratio"))
+            start = max(tk[0] + settle_s, t0)
+            banks = [b for b in self.banks if start <= b["t"] <= tk[-1]]
+            if not banks:
+                continue
+            pr = np.array([float(R.peak_reduction_db(
+                np.array(np.interp(b["t"], tk, fk)), np.array(np.interp(b["t"], tk, zk)),
+                *R.section_damping([n[2] for n in b["notches"]], [n[3] for n in b["notches"]],
+                                   [n[4] for n in b["notches"]], fs,
+                                   [n[5] for n in b["notches"]]), fs)) for b in banks])
+            claimed = [n[6] for b in banks for n in b["notches"]
+                       if abs(n[2] / np.interp(b["t"], tk, fk) - 1.0) < 0.1 and n[1] != 2]
+            out.append({"mode": m["name"], "frequency_hz": float(fk[-1]),
+                        "damping_ratio": float(zk[-1]), "messages": len(banks),
+                        "median_db": float(np.median(pr)), "min_db": float(pr.min()),
+                        "share_at_least_required": float(np.mean(pr >= REQUIRED_DB)),
+                        "claimed_median_db": float(np.nanmedian(claimed)) if claimed
+                        else float("nan")})
         return out
+
+    def peak_table(self) -> str:
+        """Peak reduction per mode, one line each."""
+        rows = self.peak_reduction()
+        if not rows:
+            return "(no truth or no /notch_bank: peak reduction not measured)"
+        lines = [f"{'mode':<10} {'f [Hz]':>7} {'zeta':>6} {'peak reduction median/min [dB]':>32} "
+                 f"{f'>= {REQUIRED_DB:g} dB':>9} {'claimed [dB]':>13}"]
+        for r in rows:
+            lines.append(f"{r['mode']:<10} {r['frequency_hz']:>7.2f} {r['damping_ratio']:>6.3f} "
+                         f"{r['median_db']:>20.1f} / {r['min_db']:<9.1f} "
+                         f"{100 * r['share_at_least_required']:>8.0f}% "
+                         f"{r['claimed_median_db']:>13.1f}")
+        states = [b["state"] for b in self.banks]
+        lines.append("bank states over the run: " + ", ".join(
+            f"{BANK_STATE[k]} {100 * states.count(k) / len(states):.0f}%"
+            for k in sorted(set(states))))
+        return "\n".join(lines)
 
     def summary(self) -> dict:
         last = self.estimates[-1] if self.estimates else None
@@ -97,7 +134,7 @@ class DemoResult:
                 }
                 for n in (self.banks[-1]["notches"] if self.banks else [])
             ],
-            "attenuation": self.attenuation(),
+            "peak_reduction": self.peak_reduction(),
         }
 
 
@@ -115,8 +152,18 @@ def _stamp(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-def analyse(bag: Path, recorded: Path) -> DemoResult:
-    """Read the input bag and the recording of a demo run."""
+def analyse(bag: Path, recorded: Path, params: Path | None = None) -> DemoResult:
+    """Read the input bag and the recording of a demo run (``params``: the notch node's YAML,
+    for the depths whose poles its sections keep)."""
+    values = {"depth": 30.0, "fallback_depth": 30.0}
+    if params is not None and params.exists():
+        import yaml
+
+        doc = yaml.safe_load(params.read_text()) or {}
+        for key, section in doc.items():  # 'notch_filter_node', '/**/notch_filter_node', ...
+            if str(key).split("/")[-1] == "notch_filter_node" and isinstance(section, dict):
+                values.update(section.get("ros__parameters") or {})
+    shape = {0: float(values["depth"]), 2: float(values["fallback_depth"])}
     sig_in = read_signals(bag, ["/vibration"])["/vibration"]
     res = DemoResult(
         bag=bag, t0=float(sig_in.t[0]), t_in=sig_in.t - sig_in.t[0], y_in=sig_in.values
@@ -137,10 +184,13 @@ def analyse(bag: Path, recorded: Path) -> DemoResult:
                 res.estimates.append({"t": t, "modes": modes, "converged": msg.converged})
             else:
                 notches = [
-                    (n.mode_id, n.state, n.center_frequency, n.bandwidth, n.depth)
+                    (n.mode_id, n.state, n.center_frequency, n.bandwidth, n.depth,
+                     shape.get(n.state, shape[0]), n.peak_reduction)
                     for n in msg.notches
                 ]
-                res.banks.append({"t": t, "notches": notches, "fallback": msg.fallback_active})
+                res.banks.append({"t": t, "notches": notches, "fallback": msg.fallback_active,
+                                  "state": int(msg.bank_state), "reason": msg.reason,
+                                  "phase_lag": msg.phase_lag, "age": msg.estimate_age})
     res.estimates.sort(key=lambda r: r["t"])
     res.banks.sort(key=lambda r: r["t"])
     out = read_signals(recorded, ["/vibration_filtered"]).get("/vibration_filtered")
@@ -198,6 +248,7 @@ def write_report(res: DemoResult, path: Path) -> Path:
         ax.legend()
         page.heading("Spectrum before and after").figure(fig)
 
+    page.heading("Peak reduction per mode (true mode x published bank)").pre(res.peak_table())
     page.heading("Modes and notch centres over time").pre(res.table())
     page.heading("Summary").summary(res.summary())
     return page.write(path)

@@ -31,6 +31,7 @@ setup(
             "sysid_node = sysid_node.entry:main",
             "offline = sysid_node.tools.offline:main",
             "validate = sysid_node.tools.validate:main",
+            "envelope = sysid_node.tools.envelope:main",
         ],
     },
 )

@@ -4,12 +4,13 @@
         [namespace:=left_wing]
 
 Both nodes read ``params_file`` (each takes its own section: ``/**/sysid_node:`` and
-``/**/notch_filter_node:``, which match the nodes in any namespace). sysid_node publishes
-``modal_estimate`` from ``vibration`` (and ``excitation``); notch_filter_node filters
-``vibration`` into ``vibration_filtered`` and publishes ``notch_bank``. The names are relative:
-with ``namespace:=left_wing`` they are ``/left_wing/vibration`` and so on (``/diagnostics``
-stays global). Everything else, ``use_sim_time`` included, comes from the YAML. Two wings at
-once: ``two_wings.launch.py``.
+``/**/notch_filter_node:``, which match the nodes in any namespace); the default is the main
+job's ``config/adaptive_notch.yaml``, the file ``ros2_ws/demo`` runs, so the launch behaves as
+the demo does. sysid_node publishes ``modal_estimate`` from ``vibration`` (and ``excitation``);
+notch_filter_node filters ``vibration`` into ``vibration_filtered`` and publishes
+``notch_bank``. The names are relative: with ``namespace:=left_wing`` they are
+``/left_wing/vibration`` and so on (``/diagnostics`` stays global). Everything else,
+``use_sim_time`` included, comes from the YAML. Two wings at once: ``two_wings.launch.py``.
 """
 
 import os
@@ -24,7 +25,7 @@ from launch_ros.actions import Node
 
 def generate_launch_description() -> LaunchDescription:
     default_params = os.path.join(
-        get_package_share_directory("notch_filter_node"), "config", "notch_filter_node.yaml"
+        get_package_share_directory("notch_filter_node"), "config", "adaptive_notch.yaml"
     )
     params = LaunchConfiguration("params_file")
     ns = LaunchConfiguration("namespace")

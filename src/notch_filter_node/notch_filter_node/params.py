@@ -16,7 +16,7 @@ from typing import Any
 from sysid_node.node_params import ParamSpec, check, check_imu_axes, parse_list
 from sysid_node.topics import topic_name_error
 
-from notch_filter_node.policy import PolicyConfig, check_config
+from notch_filter_node.policy import BUDGET_PRIORITIES, PolicyConfig, check_config
 from sysid_node import node_params as NP
 
 MAX_CHANNELS = 64
@@ -52,6 +52,13 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("substep", int, 8,
        "Sub-block length over which the coefficients are held while a notch moves [samples]",
        "structural", lo=1, hi=256),
+    _p("rate_tolerance", float, 0.02,
+       "Relative difference between the rate the stamps measure and the bank's rate beyond "
+       "which the bank is re-designed at the measured rate [-]", lo=0.001, hi=1.0),
+    _p("layout_confirm", int, 5,
+       "Messages in a row a new channel layout (names or count) must come in before the bank "
+       "adopts it; until then its known channels are filtered, new ones pass through [-]",
+       lo=1, hi=10000),
     # -- retuning policy (live) --
     _p("slew_rate", float, _D.slew_rate,
        "Largest rate of change of a notch centre and bandwidth [Hz/s]", lo=0.001, hi=1000.0,
@@ -68,13 +75,24 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=0.0, hi=50000.0, unit="Hz"),
     _p("depth", float, _D.depth, "Depth of the adaptive notches at their centre [dB]",
        lo=3.5, hi=80.0, unit="dB"),
-    _p("min_attenuation", float, _D.min_attenuation,
-       "Attenuation kept over the uncertainty interval of the mode frequency; sets the "
-       "bandwidth (must be below depth) [dB]", lo=0.5, hi=79.0, unit="dB"),
+    _p("peak_reduction", float, _D.peak_reduction,
+       "Required reduction of each notched mode's resonance peak by the bank, over the mode's "
+       "uncertainty (gain stabilization); sets each notch's width (must be below depth) [dB]",
+       lo=0.5, hi=79.0, unit="dB"),
     _p("sigma_k", float, _D.sigma_k,
-       "Half-width of the uncertainty interval in frequency stds [-]", lo=0.0, hi=10.0),
-    _p("damping_gain", float, _D.damping_gain,
-       "Bandwidth is at least damping_gain * 2 (zeta + zeta_std) f [-]", lo=0.0, hi=20.0),
+       "Half-width of the mode's frequency interval in frequency stds [-]", lo=0.0, hi=10.0),
+    _p("damping_sigma_k", float, _D.damping_sigma_k,
+       "The width is designed for a damping up to zeta + damping_sigma_k * zeta_std [-]",
+       lo=0.0, hi=10.0),
+    _p("drift_window", float, _D.drift_window,
+       "Span of recent estimates the drift rate of a mode is fitted over [s]", lo=0.1,
+       hi=600.0, unit="s"),
+    _p("drift_rate_min", float, _D.drift_rate_min,
+       "Drift rate a mode is assumed capable of at least, as a fraction of its frequency per "
+       "second, while its estimate ages [1/s]", lo=0.0, hi=10.0, unit="1/s"),
+    _p("design_horizon", float, _D.design_horizon,
+       "A width is designed for the estimate age 1.5 x now + design_horizon, re-designed when "
+       "the age outgrows it [s]", lo=0.0, hi=60.0, unit="s"),
     _p("damping_max", float, _D.damping_max,
        "Modes with a larger damping ratio get no notch (well damped or spurious) [-]",
        lo=0.0, hi=1.0),
@@ -90,17 +108,28 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("phase_lag_budget", float, _D.phase_lag_budget,
        "Largest total phase lag of the adaptive notches at crossover_frequency [deg]",
        lo=0.0, hi=180.0, unit="deg"),
+    _p("budget_priority", str, _D.budget_priority,
+       "What gives way when the notches' widths exceed phase_lag_budget: 'phase_lag' narrows "
+       "them (peak reduction falls short, reported), 'peak_reduction' keeps them (budget "
+       "exceeded, reported)", choices=BUDGET_PRIORITIES),
     _p("crossover_frequency", float, _D.crossover_frequency,
        "Crossover frequency of the loop the bank sits in [Hz]", lo=0.001, hi=10000.0, unit="Hz"),
     _p("stale_timeout", float, _D.stale_timeout,
-       "Age of the latest estimate at which the fallback notch is at full depth [s]",
+       "Estimate age beyond which the bank holds the notches that were tracking, widening them "
+       "by the drift their modes could have made (or falls back if none was tracking) [s]",
        lo=0.01, hi=3600.0, unit="s"),
+    _p("fallback_timeout", float, _D.fallback_timeout,
+       "Estimate age at which held notches give way to the static fallback notch (at full "
+       "depth by then) [s]", lo=0.02, hi=36000.0, unit="s"),
     _p("fallback_ramp", float, _D.fallback_ramp,
-       "Time the fallback notch takes to fade in (starts at stale_timeout - fallback_ramp) [s]",
+       "Time the fallback notch takes to fade in (ends at the timeout) [s]",
        lo=0.001, hi=600.0, unit="s"),
+    _p("future_tolerance", float, _D.future_tolerance,
+       "Estimates stamped further ahead of the signal's data time are rejected (and counted) "
+       "[s]", lo=0.0, hi=3600.0, unit="s"),
     _p("hold_time", float, _D.hold_time,
-       "Time a lost mode's notch holds its centre before fading out [s]", lo=0.0, hi=3600.0,
-       unit="s"),
+       "Time a lost mode's notch holds its centre before fading out; longest hold on an "
+       "estimator FAULT before the fallback [s]", lo=0.0, hi=3600.0, unit="s"),
     _p("fade_time", float, _D.fade_time,
        "Time a notch takes to fade its depth in or out [s]", lo=0.001, hi=3600.0, unit="s"),
     _p("fallback_center", float, _D.fallback_center, "Centre of the static fallback notch [Hz]",
@@ -154,6 +183,16 @@ def _check_notch(name: str, value: Any) -> str:
         if reason:
             return f"{name}: {reason}"
     return ""
+
+
+#: Other nodes of the suite whose sections a shared parameter file may hold.
+SUITE_NODES = ("sysid_node",)
+
+
+def check_params_file(path: str, node_name: str) -> str:
+    """A parameter file as this node reads it ('' or a one-line reason): see
+    :func:`sysid_node.node_params.check_params_file`."""
+    return NP.check_params_file(path, node_name, SPECS, SUITE_NODES)
 
 
 def policy_config(values: dict[str, Any]) -> PolicyConfig:

@@ -1,30 +1,52 @@
 """Retuning policy of the adaptive notch bank (pure): which notch sits where, how wide, how deep.
 
 Input is plain data (:class:`ModeInput`, :class:`EstimateInput`), output the section parameters of
-the bank (:class:`~notch_filter_node.sections.SectionParams`) and a status per notch.
+the bank (:class:`~notch_filter_node.sections.SectionParams`), a status per notch and the bank's
+state with its transitions.
 
-- A mode gets a notch only once its status is ``tracked``, its frequency lies in
-  ``[freq_min, freq_max]``, its damping is at most ``damping_max`` and its amplitude is at least
-  ``min_relative_amplitude`` times the largest such mode's (a mode that small hardly reaches the
-  feedback signal, and is often a noise mode with a wide uncertainty); the new notch starts at
-  the estimate with its budget-limited bandwidth and fades its depth in. When there are more
-  such modes than sections, the modes that already have a notch keep it and the largest
-  (``amplitude``) of the others come next.
-- The centre follows the estimate at most at ``slew_rate`` [Hz/s], and only when the estimate has
-  moved by more than the hysteresis ``max(hysteresis, hysteresis_sigma * sigma_f)``.
-- Bandwidth: the narrowest notch that keeps ``min_attenuation`` over the uncertainty interval
-  ``f +- (sigma_k sigma_f + hysteresis)`` (:func:`~notch_filter_node.sections.covering_zp`), and at
-  least ``damping_gain * 2 (zeta + sigma_zeta) f`` (the mode's own half-power width), clipped to
-  ``[bandwidth_min, bandwidth_max]``: a confident estimate gets a narrow notch. The total phase
-  lag of the adaptive notches at ``crossover_frequency`` (scipy.signal.freqz) is then held within
-  ``phase_lag_budget`` by narrowing all of them towards ``bandwidth_min`` by a common factor.
-- A lost (or vanished, or out-of-band) mode's notch holds its centre for ``hold_time``, then fades
-  its depth to 0 dB over ``fade_time`` (never switched off in one step), then frees its slot.
-- Fallback: while there is no estimate, the estimate is older than ``stale_timeout - fallback_ramp``
-  or not converged, the configured static notch fades in over ``fallback_ramp`` (so it is at full
-  depth when the estimate is ``stale_timeout`` old) and the adaptive notches hold, then fade.
-- Every parameter moves at a bounded rate per second of data (centre and bandwidth
-  ``slew_rate``, depth ``depth / fade_time``), whatever the block size.
+Which modes get a notch: a mode is notched once its status is ``tracked``, its frequency lies in
+``[freq_min, freq_max]``, its damping is at most ``damping_max`` and its amplitude is at least
+``min_relative_amplitude`` times the largest such mode's (a mode that small hardly reaches the
+feedback signal, and is often a noise mode with a wide uncertainty). When there are more such
+modes than sections, the modes that already have a notch keep it and the largest come next.
+
+Width from the resonance it must suppress (:mod:`notch_filter_node.resonance`): each notch is the
+narrowest (at ``depth``) whose peak reduction of the mode ``G = 1 / (1 - r^2 + 2 j zeta r)`` is at
+least ``peak_reduction`` for every mode in its uncertainty box: frequency ``f +- h``, ``h = sigma_k
+sigma_f + max(|drift rate| + sigma_k se, drift_rate_min f) age``, damping up to ``zeta +
+damping_sigma_k sigma_zeta`` (at most ``damping_max``), the notch sitting at its (hysteresis-held)
+centre. The drift rate is the least-squares slope of the mode's recent estimates (``drift_window``)
+with its standard error ``se``; ``age`` is the estimate's age, so a late estimate widens the notch
+by the drift the mode could have made since. A box is designed ahead, for the age plus
+``max(design_horizon, half the time since the estimate arrived)``, and re-designed when the age
+outgrows it (a few times over a long gap, not at every block). Where no notch up to
+``bandwidth_max`` reaches the requirement (a well-damped mode: its peak is less than that above its
+static gain), the notch is the narrowest within 1 dB of the best such notch, and says so. Then the
+phase budget: when the adaptive notches together lag more than ``phase_lag_budget`` at
+``crossover_frequency``, either they are narrowed by a common factor (``budget_priority:
+phase_lag``; their guaranteed peak reduction drops and each says so) or they keep their width and
+the bank says the budget is exceeded (``peak_reduction``).
+
+Bank states (sysid_msgs/NotchBank), in order of degradation:
+
+- TRACKING: a fresh (age <= ``stale_timeout``), converged, healthy estimate; the notches follow
+  it (centre at most at ``slew_rate`` beyond the hysteresis ``max(hysteresis, hysteresis_sigma
+  sigma_f)``).
+- HOLDING: the estimate is late, degraded (``health`` DEGRADED, or not converged) or the
+  estimator reports a FAULT (for at most ``hold_time``): the notches that were tracking keep their
+  centre and widen with the estimate's age as above; a degraded estimate never retunes them.
+- PREDICTED: notches follow an LPV model's prediction (not produced by this policy yet).
+- FALLBACK: nothing was tracking and the estimate is late (``stale_timeout``), or the estimate is
+  older than ``fallback_timeout``, or a FAULT lasted ``hold_time``, or there was never a usable
+  estimate: the configured static notch fades in over ``fallback_ramp`` (full depth at the
+  timeout) and the adaptive notches fade out over ``fade_time``.
+
+The age of an estimate is the larger of ``now - stamp`` and ``now - received`` (data time at
+arrival), so a stamp from the future cannot keep an estimate fresh; a stamp more than
+``future_tolerance`` ahead of the data is rejected (and counted). A lost mode's notch holds for
+``hold_time``, then fades its depth out over ``fade_time`` and frees its slot. Every parameter
+moves at a bounded rate per second of data (centre and bandwidth ``slew_rate``, depth
+``depth / fade_time``), whatever the block size.
 """
 
 from __future__ import annotations
@@ -35,13 +57,33 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from notch_filter_node import resonance as R
 from notch_filter_node import sections as S
 
 # Notch states (constants of sysid_msgs/Notch)
-TRACKING, HOLDING, PARKED, DISABLED = 0, 1, 2, 3
-STATE_NAMES = {TRACKING: "tracking", HOLDING: "holding", PARKED: "parked", DISABLED: "disabled"}
-#: Relative bandwidth change below which a tracking notch keeps its bandwidth target.
+TRACKING, HOLDING, PARKED, DISABLED, PREDICTED = 0, 1, 2, 3, 4
+STATE_NAMES = {TRACKING: "tracking", HOLDING: "holding", PARKED: "parked", DISABLED: "disabled",
+               PREDICTED: "predicted"}
+# Bank states (constants of sysid_msgs/NotchBank), in order of degradation
+BANK_TRACKING, BANK_HOLDING, BANK_PREDICTED, BANK_FALLBACK = 0, 1, 2, 3
+BANK_NAMES = {BANK_TRACKING: "tracking", BANK_HOLDING: "holding", BANK_PREDICTED: "predicted",
+              BANK_FALLBACK: "fallback"}
+# Estimate health (constants of sysid_msgs/ModalEstimate)
+HEALTH_OK, HEALTH_DEGRADED, HEALTH_FAULT = 0, 1, 2
+BUDGET_PRIORITIES = ("phase_lag", "peak_reduction")
+#: Relative bandwidth change below which a notch keeps a narrower-than-before target.
 BANDWIDTH_HYSTERESIS = 0.1
+#: Where the requirement cannot be met: the narrowest notch within this of the best one [dB].
+SHORTFALL_SLACK_DB = 1.0
+#: A box is re-designed narrower once it has shrunk below this fraction of the designed one.
+NARROW_FRACTION = 0.6
+#: A late bank tracks again once the estimate is younger than this fraction of stale_timeout;
+#: a bank that fell back on age holds again once it is younger than this fraction of the limit.
+RECOVER_FRACTION = 0.5
+AGED_OUT = " (aged out)"
+#: A design looks ahead by this fraction of the time since its estimate arrived (at least
+#: ``design_horizon``), so a long gap is re-designed a few times, not at every block.
+GAP_GROWTH = 0.5
 
 
 @dataclass(frozen=True)
@@ -59,11 +101,16 @@ class ModeInput:
 
 @dataclass(frozen=True)
 class EstimateInput:
-    """A modal estimate: stamp [s] (time of the last sample it used), converged flag, modes."""
+    """A modal estimate: stamp [s] (data time of the last sample it used), converged flag, modes,
+    health (HEALTH_*) and ``received``: the data time (signal clock) when it arrived, NaN when
+    unknown."""
 
     stamp: float
     converged: bool
     modes: Sequence[ModeInput] = ()
+    health: int = HEALTH_OK
+    health_reason: str = ""
+    received: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -76,21 +123,27 @@ class PolicyConfig:
     freq_min: float = 2.0  # [Hz]
     freq_max: float = 0.0  # [Hz], 0 = 0.4 fs
     depth: float = 30.0  # [dB] at the centre
-    min_attenuation: float = 20.0  # [dB] kept over the uncertainty interval
-    sigma_k: float = 3.0  # [-] uncertainty interval half-width in frequency stds
-    damping_gain: float = 1.0  # [-] bandwidth >= damping_gain * 2 zeta f
+    peak_reduction: float = 15.0  # [dB] required reduction of the mode's resonance peak
+    sigma_k: float = 3.0  # [-] frequency interval half-width in frequency stds
+    damping_sigma_k: float = 2.0  # [-] damping taken up to zeta + this * zeta_std
+    drift_window: float = 2.0  # [s] recent estimates the drift rate is fitted over
+    drift_rate_min: float = 0.01  # [1/s] drift assumed at least (fraction of f per second)
+    design_horizon: float = 0.2  # [s] least look-ahead of a design beyond the current age
     damping_max: float = 0.15  # [-] better damped modes get no notch
     min_relative_amplitude: float = 0.05  # [-] of the largest usable mode's amplitude
     bandwidth_min: float = 0.05  # [Hz]
     bandwidth_max: float = 5.0  # [Hz]
     phase_lag_budget: float = 10.0  # [deg] total of the adaptive notches at the crossover
+    budget_priority: str = "phase_lag"  # or "peak_reduction": which gives way
     crossover_frequency: float = 0.5  # [Hz]
-    stale_timeout: float = 2.0  # [s]
+    stale_timeout: float = 1.0  # [s] estimate age beyond which the bank holds
+    fallback_timeout: float = 10.0  # [s] estimate age at which the fallback is at full depth
     fallback_ramp: float = 0.25  # [s]
-    hold_time: float = 1.0  # [s]
+    future_tolerance: float = 2.0  # [s] estimates stamped further ahead of the data: rejected
+    hold_time: float = 1.0  # [s] lost mode's notch hold; longest hold on an estimator fault
     fade_time: float = 1.0  # [s]
     fallback_center: float = 2.79  # [Hz]
-    fallback_bandwidth: float = 4.2  # [Hz]
+    fallback_bandwidth: float = 2.56  # [Hz]
     fallback_depth: float = 30.0  # [dB], 0 = no fallback notch
     max_notches: int = 5  # adaptive sections (the fallback has its own)
 
@@ -102,11 +155,16 @@ def check_config(c: PolicyConfig, fs: float = math.nan) -> str:
     if c.bandwidth_min > c.bandwidth_max:
         return (f"bandwidth_min={c.bandwidth_min:g} Hz must not exceed "
                 f"bandwidth_max={c.bandwidth_max:g} Hz")
-    if c.depth <= c.min_attenuation:
-        return f"depth={c.depth:g} dB must exceed min_attenuation={c.min_attenuation:g} dB"
+    if c.depth <= c.peak_reduction:
+        return f"depth={c.depth:g} dB must exceed peak_reduction={c.peak_reduction:g} dB"
     if c.fallback_ramp >= c.stale_timeout:
         return (f"fallback_ramp={c.fallback_ramp:g} s must be shorter than "
                 f"stale_timeout={c.stale_timeout:g} s")
+    if c.stale_timeout >= c.fallback_timeout:
+        return (f"stale_timeout={c.stale_timeout:g} s must be shorter than "
+                f"fallback_timeout={c.fallback_timeout:g} s")
+    if c.budget_priority not in BUDGET_PRIORITIES:
+        return f"budget_priority='{c.budget_priority}' is not one of {', '.join(BUDGET_PRIORITIES)}"
     if math.isfinite(fs) and fs > 0:
         nyq = fs / 2
         if c.freq_max > nyq:
@@ -124,10 +182,11 @@ def check_config(c: PolicyConfig, fs: float = math.nan) -> str:
 
 @dataclass
 class Slot:
-    """One section of the bank and what it follows."""
+    """One section of the bank, what it follows and the box it was designed for."""
 
     mode_id: int = 0
     state: int = DISABLED
+    late: bool = False  # HOLDING because the estimate is late or degraded (not a lost mode)
     center: float = 1.0
     bandwidth: float = 0.1
     depth: float = 0.0
@@ -137,6 +196,18 @@ class Slot:
     target_depth: float = 0.0
     desired_bandwidth: float = 0.1  # before the phase-lag budget
     hold_since: float = math.nan
+    # the mode model: estimate, drift bound [Hz/s], stamp and arrival of its estimate
+    f: float = math.nan
+    f_std: float = math.nan
+    zeta: float = math.nan
+    zeta_hi: float = math.nan
+    drift: float = 0.0
+    stamp: float = math.nan
+    received: float = math.nan
+    # the box the desired bandwidth was designed for, and what it guarantees there
+    design: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, math.nan)
+    guaranteed: float = math.nan  # [dB] peak reduction over the box, this notch alone
+    limit: str = ""  # why ``guaranteed`` is below the requirement ('' when it is not)
 
 
 @dataclass(frozen=True)
@@ -148,6 +219,24 @@ class NotchStatus:
     center: float
     bandwidth: float
     depth: float
+    limit: str = ""
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A change of the bank state at data time ``t`` (estimate ``age`` [s] then)."""
+
+    t: float
+    old: int
+    new: int
+    age: float
+    reason: str
+
+    def text(self) -> str:
+        age = f"{self.age:.2f} s" if math.isfinite(self.age) else "none"
+        why = f": {self.reason}" if self.reason else ""
+        return (f"notch bank {BANK_NAMES[self.old]} -> {BANK_NAMES[self.new]} "
+                f"(estimate age {age}){why}")
 
 
 @dataclass
@@ -159,6 +248,8 @@ class PolicyStatus:
     estimate_age: float = math.nan
     budget_limited: bool = False
     phase_lag_deg: float = 0.0  # adaptive notches at their target bandwidths
+    bank_state: int = BANK_FALLBACK
+    reason: str = ""
 
 
 class RetuningPolicy:
@@ -176,12 +267,19 @@ class RetuningPolicy:
         fb.center = fb.target_center = config.fallback_center
         fb.bandwidth = fb.target_bandwidth = config.fallback_bandwidth
         fb.depth = fb.target_depth = config.fallback_depth  # no estimate yet: fallback at once
-        self.estimate: EstimateInput | None = None
+        self.estimate: EstimateInput | None = None  # latest accepted, any health
+        self.good: EstimateInput | None = None  # latest converged and healthy
         self.now = math.nan
+        self.bank_state = BANK_FALLBACK
+        self.reason = "no estimate yet"
         self.fallback_active = True
         self.budget_limited = False
         self.lag_deg = 0.0
         self.revision = 0  # incremented on every discrete change (state, target)
+        self.transitions: list[Transition] = []  # drained by the caller
+        self.counts: dict[str, int] = {}
+        self._fault_since = math.nan
+        self._history: dict[int, list[tuple[float, float]]] = {}
         self._params: S.SectionParams | None = None  # returned again while nothing moves
 
     # ---- configuration ----
@@ -198,45 +296,122 @@ class RetuningPolicy:
         fb = self.slots[-1]
         fb.target_center = config.fallback_center
         fb.target_bandwidth = config.fallback_bandwidth
-        if self.estimate is not None and not self._stale(self.now):
-            self._match(self.estimate)
+        for s in self.slots[:-1]:
+            s.design = (math.nan,) * 4  # re-design every notch under the new rules
+        if self.good is not None and self.bank_state in (BANK_TRACKING, BANK_HOLDING):
+            self._match(self.good)
+        else:
+            self._redesign(self._budgeted(), force=True)
+            self._apply_budget()
+        self.revision += 1
+
+    def set_rate(self, fs: float) -> None:
+        """The sample rate changed: same notches in Hz, sections re-designed at ``fs``."""
+        self.fs = float(fs)
+        self._params = None
+        for s in self.slots[:-1]:
+            s.design = (math.nan,) * 4
+        self._redesign(self._budgeted(), force=True)
+        self._apply_budget()
         self.revision += 1
 
     # ---- estimates ----
-    def _stale(self, now: float) -> bool:
-        c, e = self.config, self.estimate
-        if e is None or not e.converged or not math.isfinite(now):
-            return True
-        return now - e.stamp > c.stale_timeout - c.fallback_ramp
+    def _count(self, key: str) -> None:
+        self.counts[key] = self.counts.get(key, 0) + 1
 
-    def _uncertainty_bandwidth(self, m: ModeInput) -> float:
+    def age(self, now: float | None = None) -> float:
+        """Age [s] of the latest good estimate at data time ``now``: the larger of the stamp's
+        age and the arrival's; NaN without one."""
+        now = self.now if now is None else now
+        e = self.good
+        if e is None or not math.isfinite(now):
+            return math.nan
+        a = now - e.stamp
+        if math.isfinite(e.received):
+            a = max(a, now - e.received)
+        return max(a, 0.0)
+
+    def set_estimate(self, est: EstimateInput) -> str:
+        """Take a new estimate; returns '' when taken, else why it was rejected (also counted).
+        Rejected: stamped more than ``future_tolerance`` ahead of the data; older than the
+        current one by less than ``stale_timeout`` (out of order); the same stamp again. Older
+        by more is an estimator restart and taken. DEGRADED or unconverged estimates hold the
+        bank and never retune it; a FAULT holds it, then falls back."""
         c = self.config
-        f = m.frequency_hz
-        sf = m.frequency_std_hz
-        if not (math.isfinite(sf) and sf >= 0):
-            return c.bandwidth_max
-        half = c.sigma_k * sf + max(c.hysteresis, c.hysteresis_sigma * sf)
-        zp = S.covering_zp(f, half, c.depth, c.min_attenuation, self.fs)
-        bw = float(S.bandwidth_from_zp(f, zp, c.depth, self.fs))
-        zeta = m.damping_ratio if math.isfinite(m.damping_ratio) else 0.0
-        zstd = m.damping_std if math.isfinite(m.damping_std) else 0.0
-        bw = max(bw, c.damping_gain * 2.0 * (zeta + zstd) * f)
-        return float(np.clip(bw, c.bandwidth_min, c.bandwidth_max))
-
-    def set_estimate(self, est: EstimateInput) -> None:
-        """Take a new estimate. One older than the current is ignored (out of order), unless
-        it is older by more than ``stale_timeout``: the estimator restarted (e.g. a replay)."""
+        ref = max((t for t in (self.now, est.received) if math.isfinite(t)), default=math.nan)
+        if math.isfinite(ref) and est.stamp > ref + c.future_tolerance:
+            self._count("future_stamp")
+            return f"estimate stamped {est.stamp - ref:.3g} s ahead of the data: rejected"
         cur = self.estimate
-        if cur is not None and 0 < cur.stamp - est.stamp < self.config.stale_timeout:
-            return
+        if cur is not None and est.stamp == cur.stamp:
+            self._count("duplicate_estimate")
+            return "estimate with the same stamp again: ignored"
+        if cur is not None and 0 < cur.stamp - est.stamp < c.stale_timeout:
+            self._count("out_of_order_estimate")
+            return f"estimate {cur.stamp - est.stamp:.3g} s older than the current one: ignored"
+        restart = cur is not None and est.stamp < cur.stamp
         self.estimate = est
-        if self._stale(est.stamp if not math.isfinite(self.now) else max(self.now, est.stamp)):
-            return
-        self._match(est)
+        if restart:
+            self._history.clear()
+            if self.good is not None and self.good.stamp > est.stamp:
+                self.good = None
+        if est.health == HEALTH_FAULT:
+            if not math.isfinite(self._fault_since):
+                self._fault_since = ref if math.isfinite(ref) else est.stamp
+        else:
+            self._fault_since = math.nan
+        if est.health == HEALTH_OK and est.converged:
+            self._remember(est)
+            self.good = est
+        now = self.now if math.isfinite(self.now) else est.stamp
+        self._update_state(now)
+        if self.good is not est:
+            return ""  # degraded, unconverged or fault: hold, never retune on it
+        age = self.age(now)
+        if self.bank_state in (BANK_TRACKING, BANK_HOLDING):
+            self._match(est)  # a late but newer estimate still knows more than the last one
+        elif age <= RECOVER_FRACTION * c.fallback_timeout and self._usable(est):
+            # late from the start, or back after a fallback: late modes are held, not lost
+            self._match(est, TRACKING if age <= c.stale_timeout else HOLDING)
+            self._update_state(now)
+        return ""
 
-    def _match(self, est: EstimateInput) -> None:
+    def _remember(self, est: EstimateInput) -> None:
+        """Keep the recent frequencies of tracked modes (drift-rate fit)."""
+        keep = est.stamp - self.config.drift_window
+        seen = set()
+        for m in est.modes:
+            if m.status == "tracked" and math.isfinite(m.frequency_hz):
+                h = self._history.setdefault(int(m.id), [])
+                h.append((est.stamp, m.frequency_hz))
+                seen.add(int(m.id))
+        for mid in list(self._history):
+            h = [p for p in self._history[mid] if p[0] >= keep]
+            if h:
+                self._history[mid] = h
+            else:
+                del self._history[mid]
+
+    def drift_rate(self, mode_id: int) -> tuple[float, float]:
+        """Least-squares drift rate [Hz/s] of a mode over ``drift_window`` and its standard
+        error; (0, 0) with fewer than 4 estimates or spanning under a quarter of the window."""
+        h = self._history.get(int(mode_id), [])
+        if len(h) < 4:
+            return 0.0, 0.0
+        t, f = np.array(h).T
+        if t[-1] - t[0] < 0.25 * self.config.drift_window:
+            return 0.0, 0.0
+        tc = t - t.mean()
+        sxx = float(tc @ tc)
+        if sxx <= 0:
+            return 0.0, 0.0
+        slope = float(tc @ (f - f.mean())) / sxx
+        res = f - f.mean() - slope * tc
+        se = math.sqrt(float(res @ res) / (len(h) - 2) / sxx)
+        return slope, se
+
+    def _usable(self, est: EstimateInput) -> dict[int, ModeInput]:
         c = self.config
-        adaptive = self.slots[:-1]
         usable = {}
         for m in est.modes:
             f = m.frequency_hz
@@ -249,6 +424,14 @@ class RetuningPolicy:
             floor = c.min_relative_amplitude * max(amps)
             usable = {k: m for k, m in usable.items()
                       if not (math.isfinite(m.amplitude) and m.amplitude < floor)}
+        return usable
+
+    def _match(self, est: EstimateInput, following: int | None = None) -> None:
+        """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING
+        or HOLDING), by default the bank's."""
+        c = self.config
+        adaptive = self.slots[:-1]
+        usable = self._usable(est)
         # modes that already have a notch first, then the largest (unknown amplitude last)
         held = {s.mode_id for s in adaptive if s.state != DISABLED or s.depth > 0}
         usable = dict(sorted(usable.items(), key=lambda kv: (
@@ -256,6 +439,9 @@ class RetuningPolicy:
             -(kv[1].amplitude if math.isfinite(kv[1].amplitude) else -math.inf))))
         by_id = {s.mode_id: s for s in adaptive if s.state != DISABLED or s.depth > 0}
         new: list[Slot] = []
+        touched: list[Slot] = []
+        if following is None:
+            following = TRACKING if self.bank_state == BANK_TRACKING else HOLDING
         for mid, m in usable.items():
             slot = by_id.get(mid)
             if slot is None:
@@ -265,13 +451,13 @@ class RetuningPolicy:
                 slot.mode_id = mid
                 slot.center = slot.target_center = m.frequency_hz
                 slot.shape_depth = c.depth
-                bw = self._uncertainty_bandwidth(m)
-                slot.bandwidth = slot.target_bandwidth = slot.desired_bandwidth = bw
+                slot.design = (math.nan,) * 4
                 new.append(slot)
                 self.revision += 1
-            if slot.state != TRACKING:
-                slot.state = TRACKING
-                slot.hold_since = math.nan
+            if slot.state != following or slot.late != (following == HOLDING):
+                slot.state = following
+                slot.late = following == HOLDING
+                slot.hold_since = math.nan if following == TRACKING else est.stamp
                 self.revision += 1
             slot.target_depth = c.depth
             sf = m.frequency_std_hz if math.isfinite(m.frequency_std_hz) else 0.0
@@ -279,29 +465,142 @@ class RetuningPolicy:
                                                                c.hysteresis_sigma * sf):
                 slot.target_center = m.frequency_hz
                 self.revision += 1
-            bw = self._uncertainty_bandwidth(m)
-            if abs(bw - slot.desired_bandwidth) > BANDWIDTH_HYSTERESIS * slot.desired_bandwidth:
-                slot.desired_bandwidth = bw
-                self.revision += 1
+            self._set_model(slot, m, est)
+            touched.append(slot)
         for slot in adaptive:
-            if slot.state == TRACKING and slot.mode_id not in usable:
+            if slot.mode_id not in usable and (slot.state == TRACKING
+                                               or (slot.state == HOLDING and slot.late)):
                 self._hold(slot, est.stamp)
+        self._redesign(touched)
         self._apply_budget()
         for slot in new:  # depth 0 yet: start at the budget-limited width, no sweep down
             slot.bandwidth = slot.target_bandwidth
 
+    def _set_model(self, slot: Slot, m: ModeInput, est: EstimateInput) -> None:
+        c = self.config
+        slot.f = m.frequency_hz
+        slot.f_std = m.frequency_std_hz
+        slot.zeta = m.damping_ratio
+        if math.isfinite(m.damping_ratio):
+            zstd = m.damping_std if math.isfinite(m.damping_std) else 0.0
+            slot.zeta_hi = min(m.damping_ratio + c.damping_sigma_k * zstd, c.damping_max)
+        else:
+            slot.zeta_hi = c.damping_max
+        slope, se = self.drift_rate(m.id)
+        slot.drift = abs(slope) + c.sigma_k * se
+        slot.stamp = est.stamp
+        slot.received = est.received
+
     def _hold(self, slot: Slot, t: float) -> None:
+        """A lost mode: the notch holds its centre and width for ``hold_time``, then fades."""
         slot.state = HOLDING
+        slot.late = False
         slot.hold_since = t
         slot.target_center = slot.center
         slot.target_bandwidth = slot.bandwidth
         self.revision += 1
 
-    def _apply_budget(self) -> None:
-        """Narrow the tracking notches by a common factor until their total phase lag at the
-        crossover fits the budget (bisection; lags from scipy.signal.freqz)."""
+    # ---- width ----
+    def _slot_age(self, s: Slot, now: float) -> float:
+        if not (math.isfinite(now) and math.isfinite(s.stamp)):
+            return 0.0
+        a = now - s.stamp
+        if math.isfinite(s.received):
+            a = max(a, now - s.received)
+        return max(a, 0.0)
+
+    def half_width(self, s: Slot, age: float) -> float:
+        """Half-width [Hz] of the frequency box of a slot's mode at estimate age ``age``."""
         c = self.config
-        tr = [s for s in self.slots[:-1] if s.state == TRACKING]
+        return c.sigma_k * s.f_std + max(s.drift, c.drift_rate_min * s.f) * max(age, 0.0)
+
+    def _design_age(self, s: Slot, now: float) -> float:
+        """Estimate age a design covers: the age now plus the look-ahead."""
+        age = self._slot_age(s, now)
+        since = now - s.received if math.isfinite(s.received) and math.isfinite(now) else age
+        return age + max(self.config.design_horizon, GAP_GROWTH * max(since, 0.0))
+
+    def _budgeted(self) -> list[Slot]:
+        return [s for s in self.slots[:-1]
+                if s.state == TRACKING or (s.state == HOLDING and s.late)]
+
+    def _needs_design(self, s: Slot, age: float) -> bool:
+        lo, hi, zeta, centre = s.design
+        if not math.isfinite(s.f_std):
+            return centre != s.target_center
+        h = self.half_width(s, age)
+        if not (s.f - h >= lo and s.f + h <= hi and s.zeta_hi <= zeta
+                and centre == s.target_center):
+            return True  # outgrown (or never designed)
+        h_ahead = self.half_width(s, age + self.config.design_horizon)
+        return 2.0 * h_ahead < NARROW_FRACTION * (hi - lo)  # could be markedly narrower
+
+    def _redesign(self, slots: Sequence[Slot], force: bool = False) -> bool:
+        """Design the slots whose box outgrew (or undergrew) their design; True if any was
+        (the caller then applies the budget)."""
+        c = self.config
+        now = self.now if math.isfinite(self.now) else max(
+            (s.stamp for s in slots if math.isfinite(s.stamp)), default=math.nan)
+        todo = [s for s in slots if force or self._needs_design(s, self._slot_age(s, now))]
+        if todo:
+            unknown = [s for s in todo if not math.isfinite(s.f_std)]
+            for s in unknown:  # no frequency std: the widest notch
+                s.design = (math.nan, math.nan, math.nan, s.target_center)
+                s.guaranteed, s.limit = math.nan, "frequency std unknown"
+                self._set_desired(s, c.bandwidth_max)
+            known = [s for s in todo if math.isfinite(s.f_std)]
+            if known:
+                self._design(known, now)
+        return bool(todo)
+
+    def _design(self, slots: Sequence[Slot], now: float) -> None:
+        c = self.config
+        ages = np.array([self._design_age(s, now) for s in slots])
+        f = np.array([s.f for s in slots])
+        h = np.array([self.half_width(s, a) for s, a in zip(slots, ages, strict=True)])
+        zeta = np.array([s.zeta_hi for s in slots])
+        tc = np.array([s.target_center for s in slots])
+        lo, hi = f - h, f + h
+        zp_min, _ = S.pole_zero_damping(tc, np.minimum(c.bandwidth_min, c.bandwidth_max),
+                                        c.depth, self.fs)
+        zp_max, _ = S.pole_zero_damping(tc, c.bandwidth_max, c.depth, self.fs)
+        zp, worst = R.design_zp(tc, lo, hi, zeta, c.peak_reduction, c.depth, self.fs,
+                                zp_min, zp_max)
+        short = worst < c.peak_reduction - R.DECISION_MARGIN_DB
+        if short.any():  # unattainable: the narrowest within SHORTFALL_SLACK_DB of the best
+            k = np.flatnonzero(short)
+            zp_k, worst_k = R.design_zp(tc[k], lo[k], hi[k], zeta[k],
+                                        float(np.min(worst[k])) - SHORTFALL_SLACK_DB,
+                                        c.depth, self.fs, zp_min[k], zp_max[k])
+            zp[k], worst[k] = zp_k, worst_k
+        bw = S.bandwidth_from_zp(tc, zp, c.depth, self.fs)
+        for i, s in enumerate(slots):
+            s.design = (float(lo[i]), float(hi[i]), float(zeta[i]), float(tc[i]))
+            s.guaranteed = float(worst[i])
+            s.limit = (f"at most {worst[i]:.1f} dB within bandwidth_max (damping "
+                       f"{zeta[i]:.3f})" if short[i] else "")
+            self._set_desired(s, float(bw[i]))
+
+    def _set_desired(self, s: Slot, bw: float) -> None:
+        """Widen at once; narrow only by more than BANDWIDTH_HYSTERESIS (no churn)."""
+        bw = float(np.clip(bw, self.config.bandwidth_min, self.config.bandwidth_max))
+        if bw > s.desired_bandwidth or bw < (1.0 - BANDWIDTH_HYSTERESIS) * s.desired_bandwidth:
+            if abs(bw - s.desired_bandwidth) > BANDWIDTH_HYSTERESIS * s.desired_bandwidth:
+                self.revision += 1
+            s.desired_bandwidth = bw
+
+    def _lags(self, centres: np.ndarray, bws: np.ndarray) -> np.ndarray:
+        """Summed phase lag [deg] at the crossover of notches (bandwidths ``(..., n)``)."""
+        c = self.config
+        zp, zz = S.pole_zero_damping(centres, bws, c.depth, self.fs)
+        return np.sum(S.damping_lag_deg(c.crossover_frequency, centres, zp, zz, self.fs),
+                      axis=-1)
+
+    def _apply_budget(self) -> None:
+        """Hold the adaptive notches' total phase lag at the crossover within the budget (a
+        common narrowing factor), or report it exceeded (``budget_priority``)."""
+        c = self.config
+        tr = self._budgeted()
         self.budget_limited = False
         if not tr:
             self.lag_deg = 0.0
@@ -309,28 +608,99 @@ class RetuningPolicy:
         f0 = np.array([s.target_center for s in tr])
         want = np.array([s.desired_bandwidth for s in tr])
         lo_bw = np.minimum(c.bandwidth_min, want)
-
-        def lag(scale: float) -> float:
-            bw = lo_bw + scale * (want - lo_bw)
-            sos = S.notch_sos(f0, bw, np.full(len(tr), c.depth), self.fs)
-            return float(np.sum(S.section_phase_lags_deg(sos, c.crossover_frequency, self.fs)))
-
         scale = 1.0
-        total = lag(1.0)
-        if total > c.phase_lag_budget:
+        total = float(self._lags(f0, want))
+        if total > c.phase_lag_budget and c.budget_priority == "phase_lag":
             self.budget_limited = True
-            lo, hi = 0.0, 1.0
-            for _ in range(30):
-                mid = 0.5 * (lo + hi)
-                if lag(mid) > c.phase_lag_budget:
-                    hi = mid
-                else:
-                    lo = mid
-            scale = lo
-            total = lag(scale)
+            a, b = 0.0, 1.0
+            for _ in range(2):  # two passes of 64 scales: about 1/4000 of the range
+                q = np.linspace(a, b, 64)
+                lags = self._lags(f0, lo_bw + q[:, None] * (want - lo_bw))
+                k = int(np.searchsorted(lags, c.phase_lag_budget, side="right"))  # lag grows
+                a, b = q[max(k - 1, 0)], q[min(k, 63)]
+            scale = a
+            total = float(self._lags(f0, lo_bw + scale * (want - lo_bw)))
         self.lag_deg = total
+        narrowed = []
         for s, w, lb in zip(tr, want, lo_bw, strict=True):
             s.target_bandwidth = float(lb + scale * (w - lb))
+            if scale < 1.0 and math.isfinite(s.design[0]):
+                narrowed.append(s)
+        if narrowed:  # what the narrowed notches still guarantee over their boxes
+            tc = np.array([s.target_center for s in narrowed])
+            zp, zz = S.pole_zero_damping(tc, np.array([s.target_bandwidth for s in narrowed]),
+                                         c.depth, self.fs)
+            worst = R.worst_peak_reduction_db(
+                np.array([s.design[0] for s in narrowed]),
+                np.array([s.design[1] for s in narrowed]),
+                np.array([s.design[2] for s in narrowed]),
+                tc[:, None], zp[:, None], zz[:, None], self.fs)
+            for s, w in zip(narrowed, worst, strict=True):
+                s.guaranteed = float(w)
+                if w < c.peak_reduction - R.DECISION_MARGIN_DB:
+                    s.limit = (f"phase budget {c.phase_lag_budget:g} deg: {w:.1f} dB < "
+                               f"{c.peak_reduction:g} dB")
+        elif total > c.phase_lag_budget:
+            self.budget_limited = True
+
+    # ---- bank state ----
+    def _held(self) -> bool:
+        return any(s.state == TRACKING or (s.state == HOLDING and s.late)
+                   for s in self.slots[:-1])
+
+    def _evaluate(self, now: float) -> tuple[int, str]:
+        c = self.config
+        latest, good = self.estimate, self.good
+        if latest is None:
+            return BANK_FALLBACK, "no estimate yet"
+        held = self._held()
+        age = self.age(now)
+        if latest.health == HEALTH_FAULT:
+            why = f"estimator fault: {latest.health_reason or 'no reason given'}"
+            if held and now - self._fault_since < c.hold_time:
+                return BANK_HOLDING, why
+            return BANK_FALLBACK, why
+        if good is None:
+            return BANK_FALLBACK, ("no converged estimate yet" if latest.health == HEALTH_OK
+                                   else f"estimate degraded: {latest.health_reason}")
+        limit = c.fallback_timeout if held else c.stale_timeout
+        aged_out = self.bank_state == BANK_FALLBACK and self.reason.endswith(AGED_OUT)
+        if age > limit - c.fallback_ramp or (aged_out and age > RECOVER_FRACTION * limit):
+            what = ", no notch was tracking" if not held else ""
+            return BANK_FALLBACK, f"estimate {age:.2f} s old{what}{AGED_OUT}"
+        if latest is not good:
+            why = (f"estimate degraded: {latest.health_reason or 'no reason given'}"
+                   if latest.health == HEALTH_DEGRADED else "estimate not converged")
+            return (BANK_HOLDING, why) if held else (BANK_FALLBACK, why + ", no notch tracking")
+        back = RECOVER_FRACTION * c.stale_timeout  # hysteresis: no flapping at the limit
+        if age > c.stale_timeout or (self.bank_state == BANK_HOLDING and age > back
+                                     and self.reason.startswith("estimate late")):
+            return BANK_HOLDING, f"estimate late ({age:.2f} s)"
+        return BANK_TRACKING, ""
+
+    def _update_state(self, now: float) -> None:
+        new, reason = self._evaluate(now)
+        self.reason = reason
+        old = self.bank_state
+        if new == old:
+            return
+        self.bank_state = new
+        self.fallback_active = new == BANK_FALLBACK
+        self.transitions.append(Transition(now, old, new, self.age(now), reason))
+        self._count(f"to_{BANK_NAMES[new]}")
+        self.revision += 1
+        if new == BANK_HOLDING:
+            for s in self.slots[:-1]:
+                if s.state == TRACKING:
+                    s.state, s.late, s.hold_since = HOLDING, True, now
+        elif new == BANK_FALLBACK:
+            for s in self.slots[:-1]:
+                if s.state == TRACKING or (s.state == HOLDING and s.late):
+                    s.state, s.late, s.hold_since = HOLDING, False, now
+                    s.target_depth = 0.0  # fade out now: the fallback takes over
+            self._apply_budget()
+        elif new == BANK_TRACKING and self.good is not None:
+            self._match(self.good)
 
     # ---- time ----
     def advance(self, now: float, dt: float) -> S.SectionParams:
@@ -338,12 +708,16 @@ class RetuningPolicy:
         ``now``; returns the section parameters to reach at the end of the block."""
         c = self.config
         self.now = now
-        stale = self._stale(now)
-        if stale != self.fallback_active:
-            self.fallback_active = stale
-            self.revision += 1
-            if not stale and self.estimate is not None:
-                self._match(self.estimate)
+        dropped = set()
+        for name in ("estimate", "good"):  # judged once the data clock is known
+            e = getattr(self, name)
+            if e is not None and e.stamp > now + c.future_tolerance:
+                setattr(self, name, None)
+                if id(e) not in dropped:
+                    self._count("future_stamp")
+                dropped.add(id(e))
+        self._update_state(now)
+        stale = self.bank_state == BANK_FALLBACK
         fb = self.slots[-1]
         if c.fallback_depth > 0:
             fb.state = PARKED if stale else (DISABLED if fb.depth <= 0 else PARKED)
@@ -352,14 +726,15 @@ class RetuningPolicy:
         else:
             fb.target_depth = 0.0
         for s in self.slots[:-1]:
-            if stale and s.state == TRACKING:
-                self._hold(s, now)
-            if s.state == HOLDING and now - s.hold_since >= c.hold_time:
+            if s.state == HOLDING and not s.late and now - s.hold_since >= c.hold_time:
                 s.target_depth = 0.0
             if s.state == HOLDING and s.depth <= 0.0 and s.target_depth <= 0.0:
                 s.state = DISABLED
                 s.mode_id = 0
+                s.late = False
                 self.revision += 1
+        if self.bank_state in (BANK_TRACKING, BANK_HOLDING) and self._redesign(self._budgeted()):
+            self._apply_budget()  # widened with the age
         dt = max(float(dt), 0.0)
         lo, hi = c.freq_min, self.fmax
         last = len(self.slots) - 1
@@ -403,17 +778,56 @@ class RetuningPolicy:
             np.maximum(np.array([s.shape_depth for s in sl]), 3.5),
         )
 
+    def _active(self) -> list[Slot]:
+        return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING)]
+
     def status(self) -> PolicyStatus:
-        """Active notches in cascade order, fallback flag, estimate age."""
-        age = math.nan
-        if self.estimate is not None and math.isfinite(self.now):
-            age = max(self.now - self.estimate.stamp, 0.0)
-        notches = [
-            NotchStatus(s.mode_id, s.state, s.center, s.bandwidth, s.depth)
-            for s in self.slots
-            if s.depth > 0 or s.state in (TRACKING, HOLDING)
-        ]
-        return PolicyStatus(notches, self.fallback_active, age, self.budget_limited, self.lag_deg)
+        """Active notches in cascade order, bank state, estimate age (cheap: every block)."""
+        notches = [NotchStatus(s.mode_id, s.state, s.center, s.bandwidth, s.depth, s.limit)
+                   for s in self._active()]
+        return PolicyStatus(notches, self.fallback_active, self.age(), self.budget_limited,
+                            self.lag_deg, self.bank_state, self.reason)
+
+    def peak_reductions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per active notch (status order): the peak reduction [dB] the whole bank as it is now
+        gives the notch's mode, guaranteed over the mode's box at the current estimate age, and
+        nominal (the estimate itself); NaN for notches without a mode (fallback)."""
+        act = self._active()
+        guaranteed = np.full(len(act), np.nan)
+        nominal = np.full(len(act), np.nan)
+        k = [i for i, s in enumerate(act) if s.mode_id > 0 and math.isfinite(s.f)
+             and math.isfinite(s.zeta_hi)]
+        if not k:
+            return guaranteed, nominal
+        p = self.params()
+        on = p.depth_db > S.DEPTH_OFF_DB
+        zp, zz = S.pole_zero_damping(p.center[on], p.bandwidth[on], p.depth_db[on], self.fs,
+                                     p.shape_depth_db[on])
+        c = p.center[on]
+        sl = [act[i] for i in k]
+        f = np.array([s.f for s in sl])
+        h = np.array([self.half_width(s, self._slot_age(s, self.now))
+                      if math.isfinite(s.f_std) else 0.0 for s in sl])
+        zeta = np.array([s.zeta_hi for s in sl])
+        z0 = np.array([s.zeta if math.isfinite(s.zeta) else s.zeta_hi for s in sl])
+        fb, zb = R.box_modes(f - h, f + h, zeta)  # the box's sample modes, then the estimate
+        fm = np.concatenate([fb, f[:, None]], axis=1)
+        zm = np.concatenate([zb, z0[:, None]], axis=1)
+        span = min(float(np.sum(p.depth_db[on])) + 6.0, 80.0)  # no more reduction possible
+        pr = R.peak_reduction_db(fm, zm, c, zp, zz, self.fs, span)
+        guaranteed[k], nominal[k] = pr[:, :-1].min(axis=1), pr[:, -1]
+        return guaranteed, nominal
+
+    def phase_lag(self) -> float:
+        """Phase lag [deg] of the whole bank as it is now (fallback included) at the crossover."""
+        p = self.params()
+        on = p.depth_db > S.DEPTH_OFF_DB
+        if not on.any():
+            return 0.0
+        zp, zz = S.pole_zero_damping(p.center[on], p.bandwidth[on], p.depth_db[on], self.fs,
+                                     p.shape_depth_db[on])
+        return float(np.sum(S.damping_lag_deg(self.config.crossover_frequency, p.center[on],
+                                              zp, zz, self.fs)))
 
 
 def _toward(x: float, target: float, step: float) -> float:

@@ -117,6 +117,17 @@ def section_phase_lags_deg(sos: np.ndarray, freq: float, fs: float) -> np.ndarra
     return -np.degrees(np.angle(np.asarray(h).reshape(-1)))
 
 
+def damping_lag_deg(
+    freq: float, center: np.ndarray, zp: np.ndarray, zz: np.ndarray, fs: float
+) -> np.ndarray:
+    """Phase lag [deg] at ``freq`` of prewarped bilinear sections given by their centre and
+    pole/zero damping (broadcast; exact, closed form of :func:`section_phase_lags_deg`): at the
+    warped ratio ``v = wa / w0`` the lag is ``atan2(2 zp v, 1 - v^2) - atan2(2 zz v, 1 - v^2)``."""
+    v = warp(freq, fs) / warp(center, fs)
+    re = 1.0 - v * v
+    return np.degrees(np.arctan2(2.0 * zp * v, re) - np.arctan2(2.0 * zz * v, re))
+
+
 def covering_zp(
     center: np.ndarray | float,
     half_width: np.ndarray | float,
@@ -222,7 +233,7 @@ class NotchBank:
         self._in_hist = np.zeros((2, self.channels))  # bank input, last two samples
         self._live = np.zeros(self.n_sections, dtype=bool)  # memory maintained last block
         self._last_finite = np.zeros(self.channels)
-        self._primed = False
+        self._primed = np.zeros(self.channels, dtype=bool)
 
     @property
     def params(self) -> SectionParams:
@@ -266,8 +277,42 @@ class NotchBank:
                 and np.array_equal(p.depth_db, q.depth_db)
                 and np.array_equal(p.shape_depth_db, q.shape_depth_db))
 
-    def process(self, x: np.ndarray, params: SectionParams | None = None) -> np.ndarray:
-        """Filter ``x`` ``(samples, channels)``; the parameters ramp to ``params`` over it."""
+    def process(self, x: np.ndarray, params: SectionParams | None = None,
+                channels: np.ndarray | None = None) -> np.ndarray:
+        """Filter ``x`` ``(samples, channels)``; the parameters ramp to ``params`` over it.
+        ``channels`` (distinct bank channel of each column of ``x``) filters a subset of the
+        bank's channels, each with its own memory; the others keep theirs."""
+        if channels is None:
+            return self._process(x, params)
+        idx = np.asarray(channels, dtype=int)
+        full = (self._xm, self._ym, self._in_hist, self._last_finite, self._primed,
+                self.channels)
+        self._xm, self._ym = self._xm[:, :, idx], self._ym[:, :, idx]
+        self._in_hist, self._last_finite = self._in_hist[:, idx], self._last_finite[idx]
+        self._primed, self.channels = self._primed[idx], idx.size
+        try:
+            return self._process(x, params)
+        finally:
+            part = (self._xm, self._ym, self._in_hist, self._last_finite, self._primed)
+            self._xm, self._ym, self._in_hist, self._last_finite, self._primed = full[:5]
+            self.channels = full[5]
+            self._xm[:, :, idx], self._ym[:, :, idx] = part[0], part[1]
+            self._in_hist[:, idx], self._last_finite[idx], self._primed[idx] = part[2:]
+
+    def remap(self, kept: np.ndarray) -> None:
+        """New channel layout: new channel i continues old channel ``kept[i]`` (its memory is
+        kept), or starts afresh where ``kept[i] < 0`` (primed by its first sample)."""
+        kept = np.asarray(kept, dtype=int)
+        old = kept >= 0
+        src = np.where(old, kept, 0)
+        self._xm = np.where(old, self._xm[:, :, src], 0.0)
+        self._ym = np.where(old, self._ym[:, :, src], 0.0)
+        self._in_hist = np.where(old, self._in_hist[:, src], 0.0)
+        self._last_finite = np.where(old, self._last_finite[src], 0.0)
+        self._primed = old & self._primed[src]
+        self.channels = kept.size
+
+    def _process(self, x: np.ndarray, params: SectionParams | None) -> np.ndarray:
         x = np.asarray(x, dtype=float)
         if x.ndim != 2 or x.shape[1] != self.channels:
             raise ValueError(f"expected (samples, {self.channels}) data, got shape {x.shape}")
@@ -275,9 +320,12 @@ class NotchBank:
         if n == 0:
             return x.copy()
         u, bad = self._fill_nan(x)
-        if not self._primed:
-            self._in_hist[:] = u[0]
-            self._primed = True
+        if not self._primed.all():  # new channels start in the steady state of their first sample
+            new = ~self._primed
+            self._in_hist[:, new] = u[0, new]
+            self._xm[:, :, new] = u[0, new]
+            self._ym[:, :, new] = u[0, new]
+            self._primed[:] = True
         old = self.params
         steady_all = params is None or self._same(params)
         self._given = params

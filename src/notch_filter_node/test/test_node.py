@@ -27,7 +27,8 @@ def dds():
 
     exe = Path(get_package_prefix("notch_filter_node")) / "lib/notch_filter_node/notch_filter_node"
     args = ["--ros-args", "-p", "freq_min:=2.0", "-p", "stale_timeout:=1.0",
-            "-p", "fallback_center:=5.0", "-p", "fallback_bandwidth:=3.0"]
+            "-p", "fallback_timeout:=3.0", "-p", "fallback_center:=5.0",
+            "-p", "fallback_bandwidth:=3.0"]
     proc = subprocess.Popen([str(exe), *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             start_new_session=True, text=True)
     rclpy.init()
@@ -148,6 +149,9 @@ def test_filters_with_same_stamps_and_publishes_bank(dds):
     (n,) = [n for n in bank.notches if n.state == n.STATE_TRACKING]
     assert n.mode_id == 4 and abs(n.center_frequency - F_MODE) < 0.01 and n.depth > 25.0
     assert not bank.fallback_active and bank.estimate_age < 0.5
+    assert bank.bank_state == bank.BANK_TRACKING and bank.reason == ""
+    assert n.peak_reduction >= 15.0 - 0.1 and bank.crossover_frequency == 0.5
+    assert 0.0 < bank.phase_lag < 10.0
     dds.spin(1.2)
     keys = {kv.key for d in dds.diags for s in d.status for kv in s.values}
     assert {"estimate_age_s", "fallback_active", "per_sample_cost_us"} <= keys
@@ -161,19 +165,31 @@ def test_parameters_applied_or_rejected_with_reason(dds):
     assert max(n.depth for n in dds.banks[-1].notches) > 35.0
     (bad,) = dds.set_params(depth=100.0)  # out of the descriptor's range
     assert not bad.successful and "depth" in bad.reason
-    (bad,) = dds.set_params(min_attenuation=45.0)  # cross check: must stay below depth
-    assert not bad.successful and "min_attenuation" in bad.reason
+    (bad,) = dds.set_params(peak_reduction=45.0)  # cross check: must stay below depth
+    assert not bad.successful and "peak_reduction" in bad.reason
+    (bad,) = dds.set_params(depht=30.0)
+    assert not bad.successful and "did you mean 'depth'" in bad.reason
     (bad,) = dds.set_params(signal_topic="/other")
     assert not bad.successful and bad.reason
     (ok,) = dds.set_params(depth=30.0)
     assert ok.successful
 
 
-def test_stale_estimates_fall_back(dds):
+def test_late_estimate_holds_then_falls_back(dds):
     dds.samples(0.5, estimate_f=F_MODE)
     dds.banks.clear()
-    dds.samples(1.5)  # no estimate for 1.5 s of data > stale_timeout 1 s
+    dds.samples(1.5)  # no estimate for 1.5 s of data > stale_timeout 1 s: holding
     bank = dds.banks[-1]
-    assert bank.fallback_active and bank.estimate_age > 1.0
+    assert not bank.fallback_active and bank.bank_state == bank.BANK_HOLDING
+    assert bank.estimate_age > 1.0 and "late" in bank.reason
+    (n,) = [n for n in bank.notches if n.state == n.STATE_HOLDING]
+    assert n.mode_id == 4 and abs(n.center_frequency - F_MODE) < 0.01 and n.depth == 30.0
+    dds.samples(2.0)  # now 3.5 s > fallback_timeout 3 s
+    bank = dds.banks[-1]
+    assert bank.fallback_active and bank.bank_state == bank.BANK_FALLBACK
     parked = [n for n in bank.notches if n.state == n.STATE_PARKED]
     assert len(parked) == 1 and parked[0].center_frequency == 5.0 and parked[0].depth == 30.0
+    dds.spin(1.2)
+    diag = {kv.key: kv.value for kv in dds.diags[-1].status[0].values}
+    assert "tracking_to_holding=1" in diag["transitions"]
+    assert "holding_to_fallback=1" in diag["transitions"]

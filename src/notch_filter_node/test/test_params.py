@@ -46,7 +46,9 @@ def test_invalid_values_have_a_reason(name, value, words):
 
 def test_cross_checks():
     v = P.defaults()
-    assert "must exceed" in P.validate_set({**v, "min_attenuation": 35.0})
+    assert "must exceed" in P.validate_set({**v, "peak_reduction": 35.0})
+    assert "fallback_timeout" in P.validate_set({**v, "stale_timeout": 20.0})
+    assert "not one of" in P.validate_set({**v, "budget_priority": "both"})
     assert "Nyquist" in P.validate_set({**v, "freq_max": 300.0}, fs=500.0)
     assert P.validate_set({**v, "freq_max": 200.0}, fs=500.0) == ""
     assert P.disabled_channels(" 0, 3") == [0, 3]
@@ -59,6 +61,49 @@ def test_shipped_yaml_is_the_defaults():
     for k, v in values.items():
         assert v == P.SPECS[k].default, k
     assert P.validate_set(values) == ""
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("notch_filter_node:\n  ros__parameters:\n    depht: 30.0\n",
+         "unknown parameter 'depht' (did you mean 'depth'?) for notch_filter_node"),
+        ("notch_filer_node:\n  ros__parameters:\n    depth: 30.0\n",
+         "section 'notch_filer_node' matches no node (did you mean 'notch_filter_node'?)"),
+        ("notch_filter_node:\n  ros__parameters:\n    depth: [30.0\n", "not valid YAML at line"),
+        ("- 1\n- 2\n", "expected 'NODE_NAME: ros__parameters: ...'"),
+        ("notch_filter_node: 3\n", "has no 'ros__parameters:' mapping"),
+    ],
+)
+def test_params_file_problems_have_one_line_reasons(tmp_path, text, words):
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    reason = P.check_params_file(str(path), "notch_filter_node")
+    assert words in reason and "\n" not in reason
+    assert "cannot read" in P.check_params_file(str(tmp_path / "none.yaml"), "notch_filter_node")
+
+
+def test_params_file_with_other_nodes_and_wildcards_is_fine(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("sysid_node:\n  ros__parameters:\n    forgetting_factor: 0.99\n"
+                    "/**:\n  ros__parameters:\n    use_sim_time: false\n"
+                    "camera_driver:\n  ros__parameters:\n    fps: 30\n"
+                    "notch_filter_node:\n  ros__parameters:\n    depth: 30\n")
+    assert P.check_params_file(str(path), "notch_filter_node") == ""
+    for cfg in (PKG / "config").glob("*.yaml"):
+        assert P.check_params_file(str(cfg), "notch_filter_node") == "", cfg
+
+
+def test_type_errors_name_both_types_and_unknown_names_the_closest():
+    from sysid_node import node_params as NP
+
+    assert P.validate("depth", 30) == ""
+    assert P.validate("depth", "deep") == (
+        "depth: expected double (type float), got string (type str)")
+    assert NP.unknown_names(P.SPECS, ["depth", "use_sim_time", "depht"]) == (
+        "unknown parameter 'depht' (did you mean 'depth'?)")
+    assert NP.closest("forgeting_factor", ["forgetting_factor", "depth"]) == (
+        " (did you mean 'forgetting_factor'?)")
 
 
 def test_message_adapters():

@@ -1,12 +1,14 @@
-"""validate: compare a DSRA model with a bag, see where it fails, name the missing physical
-effect, add it and re-fit.
+"""validate: compare a DSRA model with a measurement, see where it fails, name the missing
+physical effect, add it and re-fit.
 
-    ros2_ws/run sysid_node validate --bag BAG [--order 4] [--split 0.6] [--add EFFECT[:k=v,...]]
-        [--auto] [--signal TOPIC] [--model FILE] [--save-model FILE] [--report OUT.html]
-        [--json OUT.json]
+    ros2_ws/run sysid_node validate (--bag BAG | --data FILE.npy|.csv --rate FS
+        [--inputs COLS] [--outputs COLS] [--signals COLS] [--rows A:B] [--remove-mean])
+        [--order N] [--block-rows I] [--split 0.6] [--add EFFECT[:k=v,...]] [--auto]
+        [--signal NAME] [--model FILE] [--save-model FILE] [--report OUT.html] [--json OUT.json]
 
-Errors (missing topics, a record too short to split, a saved model of other dimensions) print
-one line on stderr and exit with status 2.
+Errors (missing topics or columns, a record too short to split, a saved model of other
+dimensions, an output file that cannot be written) print one line on stderr and exit with
+status 2.
 """
 
 from __future__ import annotations
@@ -17,16 +19,13 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..bag_io import BagError
 from ..core.inputs import InputError
 from ..core.model import IdentifiedModel
-from ..validation.augment import EFFECTS, FittedModel, ModelSpec, fit
-from ..validation.data import ValidationData, ValidationError, load_bag
-from ..validation.diagnose import Assessment, Hypothesis, _jsonable, assess, diagnose
-
-AUTO_MIN_GAIN = 0.05  # --auto keeps adding while the residual RMS falls by at least 5 %
+from ..validation.augment import EFFECTS
+from ..validation.data import ValidationData, ValidationError, load_arrays, load_bag
+from ..validation.diagnose import verdict
+from ..validation.workflow import Options, Outcome, run_validation
 
 
 class _Parser(argparse.ArgumentParser):
@@ -37,7 +36,17 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="validate", description=__doc__.splitlines()[0])
-    ap.add_argument("--bag", required=True, help="rosbag2 directory (mcap or sqlite3)")
+    src = ap.add_mutually_exclusive_group(required=True)
+    src.add_argument("--bag", help="rosbag2 directory (mcap or sqlite3)")
+    src.add_argument("--data", help="plain arrays: .npy (N, columns) or .csv/.txt (header ok)")
+    ap.add_argument("--rate", type=float, default=None, help="sample rate of --data [Hz]")
+    ap.add_argument("--inputs", default=None, help="--data input columns (indices or names)")
+    ap.add_argument("--outputs", default=None, help="--data output columns [all the others]")
+    ap.add_argument("--signals", default=None, help="--data candidate signal columns [none]")
+    ap.add_argument("--rows", default=None, help="--data rows START:STOP (0-based, half-open)")
+    ap.add_argument(
+        "--remove-mean", action="store_true", help="--data: subtract each column's mean"
+    )
     ap.add_argument("--output", default="/vibration", help="output topic [/vibration]")
     ap.add_argument(
         "--input",
@@ -47,12 +56,31 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--signal",
         default=None,
-        help="the one candidate explanatory signal (default: every other topic)",
+        help="the one candidate explanatory signal (default: every other topic; '' = none)",
     )
-    ap.add_argument("--split", type=float, default=0.6, help="estimation fraction [0.6]")
-    ap.add_argument("--order", type=int, default=None, help="model order (default: gap method)")
-    ap.add_argument("--block-rows", type=int, default=20, help="block rows i of (A1) [20]")
-    ap.add_argument("--order-method", default="gap", choices=["gap", "aic", "bic", "mdl"])
+    ap.add_argument(
+        "--split",
+        type=float,
+        default=0.6,
+        help="estimation fraction, or the first validation sample when > 1 [0.6]",
+    )
+    ap.add_argument(
+        "--split-mode",
+        default="auto",
+        choices=["auto", "chronological", "interleaved"],
+        help="chronological, or interleaved blocks (auto: interleaved when the input's spectrum "
+        "changes over the record, e.g. a sweep) [auto]",
+    )
+    ap.add_argument("--order", type=int, default=None, help="model order (default: chosen)")
+    ap.add_argument(
+        "--block-rows", type=int, default=None, help="block rows i of (A1) (default: chosen)"
+    )
+    ap.add_argument(
+        "--order-method",
+        default="validation",
+        choices=["validation", "gap", "aic", "bic", "mdl"],
+        help="order selection: held-out prediction error [validation] or the core's criteria",
+    )
     ap.add_argument("--model", default=None, help="load the model from FILE instead of identifying")
     ap.add_argument("--save-model", default=None, help="save the final DSRA model to FILE (.npz)")
     ap.add_argument(
@@ -98,43 +126,6 @@ def parse_add(text: str) -> tuple[str, dict]:
     return name, params
 
 
-def _load_model(path: str, data: ValidationData, spec: ModelSpec) -> FittedModel:
-    try:
-        m = IdentifiedModel.load(path)
-    except InputError as err:
-        raise ValidationError(str(err)) from None
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise ValidationError(f"cannot load model {path}: {' '.join(str(err).split())}") from None
-    if m.n_outputs != data.n_outputs or m.n_inputs != data.n_inputs:
-        raise ValidationError(
-            f"saved model {path} has {m.n_outputs} output(s) and {m.n_inputs} input(s), the data "
-            f"has {data.n_outputs} and {data.n_inputs}"
-        )
-    if abs(m.fs - data.fs) > 0.01 * data.fs:
-        raise ValidationError(f"saved model {path} is at {m.fs:g} Hz, the data at {data.fs:g} Hz")
-    return FittedModel(spec, m.order, model=m, n_outputs=data.n_outputs)
-
-
-def _mean_ratio(after: np.ndarray, before: np.ndarray) -> float:
-    return float(np.mean(np.asarray(after) / np.asarray(before)))
-
-
-def _row(label: str, a: Assessment) -> str:
-    def fmt(v) -> str:
-        return "  -  " if v is None else " ".join(f"{x:6.1f}" for x in v)
-
-    return (
-        f"{label:28s} {fmt(a.fit_percent):>12s} {fmt(a.fit_free_run_percent):>12s} "
-        f"{' '.join(f'{x:10.4g}' for x in a.residual_rms):>12s} "
-        f"{min(w.p_value for w in a.whiteness):10.2g} "
-        + (
-            f"{min(min(x.p_past, x.p_future) for x in a.xcorr.values()):10.2g}"
-            if a.xcorr
-            else "      -   "
-        )
-    )
-
-
 def check_output_path(path: str | None, flag: str) -> None:
     """Refuse an output file that cannot be written, before any work (one-line reason)."""
     if path is None:
@@ -160,7 +151,36 @@ def _write_text(path: str, text: str, flag: str) -> None:
         raise ValidationError(f"{flag} {path}: cannot write ({err.strerror})") from None
 
 
+def _load_model(path: str, data: ValidationData) -> IdentifiedModel:
+    try:
+        m = IdentifiedModel.load(path)
+    except InputError as err:
+        raise ValidationError(str(err)) from None
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ValidationError(f"cannot load model {path}: {' '.join(str(err).split())}") from None
+    if m.n_outputs != data.n_outputs or m.n_inputs != data.n_inputs:
+        raise ValidationError(
+            f"saved model {path} has {m.n_outputs} output(s) and {m.n_inputs} input(s), the data "
+            f"has {data.n_outputs} and {data.n_inputs}"
+        )
+    if abs(m.fs - data.fs) > 0.01 * data.fs:
+        raise ValidationError(f"saved model {path} is at {m.fs:g} Hz, the data at {data.fs:g} Hz")
+    return m
+
+
+def load_data(args: argparse.Namespace) -> ValidationData:
+    """The record named by --bag or --data."""
+    if args.bag is not None:
+        return load_bag(args.bag, output_topic=args.output, input_topic=args.input or None)
+    if args.rate is None:
+        raise ValidationError("--data needs --rate (the sample rate [Hz])")
+    return load_arrays(
+        args.data, args.rate, args.outputs, args.inputs, args.signals, args.rows, args.remove_mean
+    )
+
+
 def run(args: argparse.Namespace) -> dict:
+    """Run validate as the CLI does; returns the JSON result."""
     adds = [parse_add(text) for text in args.add]  # refuse a bad --add before any work
     for path, flag in (
         (args.report, "--report"),
@@ -168,93 +188,38 @@ def run(args: argparse.Namespace) -> dict:
         (args.save_model, "--save-model"),
     ):
         check_output_path(path, flag)
-    data = load_bag(
-        args.bag,
-        output_topic=args.output,
-        input_topic=args.input or None,
-        signal_topics=None,
+    data = load_data(args)
+    opts = Options(
+        split=args.split,
+        split_mode=args.split_mode,
+        order=args.order,
+        block_rows=args.block_rows,
+        order_method=args.order_method,
+        add=adds,
+        auto=args.auto,
+        signal=args.signal,
+        max_lag=args.max_lag,
+        model=_load_model(args.model, data) if args.model else None,
     )
-    if args.signal is not None and args.signal not in data.signals:
-        raise ValidationError(
-            f"no candidate signal {args.signal} in bag {args.bag}; available: "
-            + (", ".join(sorted(data.signals)) or "-")
-        )
-    br = args.block_rows
-    n_est = data.split_index(args.split, 2 * br * (1 + data.n_inputs + data.n_outputs) + 50)
-    spec = ModelSpec(order=args.order, block_rows=br, order_method=args.order_method)
-    if args.model:
-        base = _load_model(args.model, data, spec)
-    else:
-        base = fit(spec, data, n_est)
-    spec.order = base.order
-    base.spec = spec
-    before = assess(base, data, n_est, args.max_lag)
-    hyps = diagnose(data, n_est, spec, base, before, signal=args.signal)
-    current, cur_a, cur_spec = base, before, spec
-    added: list[str] = []
-    for name, params in adds:
-        diag = next(h for h in hyps if h.effect == name)
-        merged = {**{k: v for k, v in diag.parameters.items() if v is not None}, **params}
-        if name == "input_delay":
-            merged.setdefault("fs", data.fs)
-        cur_spec = cur_spec.with_effect(name, merged)
-        added.append(name)
-    if len(adds) == 1 and not adds[0][1]:
-        diag = next(h for h in hyps if h.effect == adds[0][0])
-        if diag.trial is not None:  # the diagnosis already re-fitted exactly this structure
-            current = diag.trial
-            cur_spec = current.spec
-    if added:
-        if current is base:
-            current = fit(cur_spec, data, n_est)
-        cur_a = assess(current, data, n_est, args.max_lag)
-    if args.auto:
-        cur_hyps = (
-            hyps if not added else diagnose(data, n_est, cur_spec, current, cur_a, args.signal)
-        )
-        for _ in range(len(EFFECTS)):
-            top = next((h for h in cur_hyps if h.significant and h.trial is not None), None)
-            if top is None:
-                break
-            cand_a = assess(top.trial, data, n_est, args.max_lag)
-            if _mean_ratio(cand_a.residual_rms, cur_a.residual_rms) > 1 - AUTO_MIN_GAIN:
-                break
-            current, cur_a = top.trial, cand_a
-            cur_spec = current.spec
-            added.append(top.effect)
-            cur_hyps = diagnose(data, n_est, cur_spec, current, cur_a, args.signal)
-    result = {
-        "bag": str(args.bag),
-        "fs": data.fs,
-        "n_estimation": n_est,
-        "n_validation": data.n - n_est,
-        "outputs": data.output_names,
-        "inputs": data.input_names,
-        "candidate_signals": sorted(data.signals),
-        "order": base.order,
-        "before": before.summary(),
-        "diagnoses": [h.to_dict() for h in hyps],
-        "added": added,
-        "after": cur_a.summary(),
-        "residual_rms_reduction": 1 - _mean_ratio(cur_a.residual_rms, before.residual_rms),
-    }
-    _print(result, before, cur_a, hyps, added)
+    out = run_validation(data, opts, source=str(args.bag or args.data))
+    result = out.result()
+    _print(out, result)
     if args.save_model:
-        if current.model is None:
+        if out.current.model is None or out.current.locals:
             raise ValidationError("--save-model: the final structure is not a single DSRA model")
         try:
-            current.model.save(args.save_model)
+            out.current.model.save(args.save_model)
         except OSError as err:
             raise ValidationError(
                 f"--save-model {args.save_model}: cannot write ({err.strerror})"
             ) from None
     if args.json:
-        _write_text(args.json, json.dumps(_jsonable(result), indent=1), "--json")
+        _write_text(args.json, json.dumps(result, indent=1, allow_nan=False), "--json")
     if args.report:
         from ..validation.report import write_report
 
         try:
-            write_report(args.report, data, n_est, base, before, current, cur_a, hyps, added)
+            write_report(args.report, out)
         except OSError as err:
             raise ValidationError(
                 f"--report {args.report}: cannot write ({err.strerror})"
@@ -262,29 +227,58 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
-def _print(result, before, after, hyps: list[Hypothesis], added) -> None:
+def _fmt(values, width: int = 6) -> str:
+    if values is None:
+        return "-"
+    return " ".join(f"{v:{width}.1f}" if v is not None else "-" for v in values)
+
+
+def _print(out: Outcome, r: dict) -> None:
+    sp = r["split"]
     print(
-        f"validate {result['bag']}: {result['n_estimation']} estimation + "
-        f"{result['n_validation']} validation samples at {result['fs']:.4g} Hz, "
-        f"order {result['order']}, inputs {result['inputs'] or 'none (output-only)'}, "
-        f"candidate signals {result['candidate_signals'] or 'none'}"
+        f"validate {r['source']}: {r['n_estimation']} estimation + {r['n_validation']} "
+        f"validation samples at {r['fs']:.6g} Hz ({sp['mode']}"
+        + (f": {sp['reason']}" if sp["reason"] else "")
+        + f"), inputs {r['inputs'] or 'none (output-only)'}, "
+        f"candidate signals {r['candidate_signals'] or 'none'}"
     )
-    print("\nhypotheses (score = trial drop of the validation residual RMS):")
-    for k, h in enumerate(hyps, 1):
-        mark = "*" if h.significant else " "
-        params = json.dumps(_jsonable(h.parameters))
-        print(f" {k}.{mark} {h.effect:21s} score {h.score:5.2f}  {params}")
-        print(f"       {h.evidence}")
-    if not any(h.significant for h in hyps):
-        print(" no significant hypothesis")
-    print(
-        f"\n{'model':28s} {'fit 1-step %':>12s} {'fit free %':>12s} {'resid RMS':>12s} "
-        f"{'white p':>10s} {'xcorr p':>10s}"
+    if r["baseline"]:
+        b = r["baseline"]
+        print(f"baseline: {b['note']}")
+    what = "free-run" if r["primary"] == "free_run" else "one-step"
+    print(f"scored on the {what} prediction (primary)" + (
+        f": {r['primary_note']}" if r["primary_note"] else ""))
+    print("\nhypotheses (score = trial drop of the primary validation error):")
+    for k, h in enumerate(r["diagnoses"], 1):
+        mark = "*" if h["significant"] else " "
+        params = json.dumps(h["parameters"])
+        print(f" {k}.{mark} {h['effect']:21s} score {h['score']:5.2f}  {params}")
+        print(f"       {h['evidence']}")
+    print(f"\nverdict: {verdict(out.before, out.hyps)['text']}")
+    names = out.data.output_names
+    print(f"\n{'model':34s} {'channel':>10s} {'fit free-run %':>15s} {'fit 1-step %':>13s}")
+    rows = [("before", r["before"])] + (
+        [("after +" + "+".join(r["added"]), r["after"])] if r["added"] else []
     )
-    print(_row("before", before))
-    if added:
-        print(_row("after +" + "+".join(added), after))
-        print(f"residual RMS reduction: {100 * result['residual_rms_reduction']:.1f} %")
+    for label, s in rows:
+        for c in range(len(names)):
+            free = s["fit_free_run_percent"]
+            fv = "-" if free is None or free[c] is None else f"{free[c]:.1f}"
+            ov = s["fit_percent"][c]
+            print(
+                f"{label if c == 0 else '':34s} {names[c][:10]:>10s} {fv:>15s} "
+                f"{'-' if ov is None else f'{ov:.1f}':>13s}"
+            )
+        if s["free_run_note"]:
+            print(f"{'':34s} ({s['free_run_note']})")
+    if r["added"]:
+        for st in r["steps"]:
+            print(
+                f"+{st['model']}: {what} NRMSE {100 * st['primary_nrmse']:.2f} % "
+                f"({100 * st['drop']:.0f} % lower)"
+            )
+        print(f"{what} validation error drop: {100 * r['error_drop']:.1f} %")
+    print(f"({r['seconds']:.2f} s)")
 
 
 def main(argv: list[str] | None = None) -> int:

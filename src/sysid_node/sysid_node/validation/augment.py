@@ -9,18 +9,19 @@ vocabulary changes the structure that is re-fitted (:class:`ModelSpec`):
   f the measured rotating speed [Hz] (N/rev) or a fixed frequency;
 * ``parameter_varying``: local models identified at operating points of a scheduling signal
   theta and interpolated linearly between them, the LPV model (2) of Sec. IV;
-* ``input_delay``: the input delayed by d samples;
-* ``nonlinear_stiffness``: a cubic stiffness force, the extra input q = yhat_c^3 of one channel,
-  yhat the one-step prediction of the model without it (causal and noise-free);
+* ``input_delay``: the input delayed by d samples (fractional d: linear interpolation between
+  samples, a transport delay shorter than the sample period);
+* ``nonlinear_stiffness``: a cubic stiffness force q = z^3 on a structural coordinate z: an
+  output channel (displacement sensors), or its first or second integral from the model's
+  states (velocity or acceleration sensors), z = C_c A_c^-p x, A_c the continuous-time A; the
+  force enters as a first-order hold over the sample (q_t and q_t+1), the free run is a
+  nonlinear feedback of the simulated state;
 * ``sensor_bias``: offset and drift regressors (bias states with no dynamics);
 * ``feedback``: closed-loop-aware joint input-output identification: the reference is
   reconstructed as the part of u not predicted by past y and u (the controller, fitted by least
   squares), and [y; u] is identified from it, an open-loop problem.
 
-Additive regressors Phi are estimated by least squares on the predictor-filtered regressors
-F(Phi) = Phi - P(Phi, 0) (P the one-step predictor), i.e. the prediction error is minimised.
-Predictions and free-run simulations run over the whole record (the estimation part then
-provides the initial state of the validation part).
+How each structure is fitted, predicted and simulated: :mod:`.models`.
 """
 
 from __future__ import annotations
@@ -29,9 +30,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..core.batch import identify
-from ..core.inputs import InputError
-from ..core.lti import simulate_discrete
 from ..core.model import IdentifiedModel
 from .data import ValidationData, ValidationError
 
@@ -52,16 +50,19 @@ class ModelSpec:
 
     order: int | None = None
     block_rows: int = 20
+    focus: str = "free_run"  # fit B, D on the free run ("free_run") or keep (A4) ("one_step")
     order_method: str = "gap"
     band: tuple[float, float] | None = None
     extra_order: int = 0
-    delay: int = 0
+    delay: float = 0.0  # [samples]
     bias: bool = False
     drift: bool = True
     harmonics: list[dict] = field(default_factory=list)
     lpv_signal: str | None = None
     lpv_points: int = 3
     cubic_channel: int | None = None
+    cubic_integrals: int = 0  # the spring's coordinate: output (0), its integral (1) or double (2)
+    cubic_input: int = 0  # the input the spring force acts with (Duffing: where the input acts)
     feedback: bool = False
     feedback_lags: int = 5
     added: list[str] = field(default_factory=list)
@@ -96,13 +97,17 @@ class ModelSpec:
             s.lpv_points = int(p.get("points", s.lpv_points))
         elif effect == "input_delay":
             if "samples" in p:
-                s.delay = int(p["samples"])
+                s.delay = float(p["samples"])
             elif "delay_s" in p:
-                s.delay = int(round(float(p["delay_s"]) * float(p.get("fs", 1.0))))
+                s.delay = float(p["delay_s"]) * float(p.get("fs", 1.0))
             else:
                 raise ValidationError("input_delay needs samples=N or delay_s=T")
         elif effect == "nonlinear_stiffness":
             s.cubic_channel = int(p.get("channel", 0))
+            s.cubic_integrals = int(p.get("integrals", 0))
+            s.cubic_input = int(p.get("input", 0))
+            if s.cubic_integrals not in (0, 1, 2):
+                raise ValidationError("nonlinear_stiffness: integrals must be 0, 1 or 2")
         elif effect == "sensor_bias":
             s.bias = True
             s.drift = str(p.get("drift", True)).lower() not in ("0", "false", "no")
@@ -112,14 +117,6 @@ class ModelSpec:
         else:
             raise ValidationError(f"unknown effect {effect!r}; one of {', '.join(EFFECTS)}")
         return s
-
-
-def _shift(u: np.ndarray, d: int) -> np.ndarray:
-    if d <= 0:
-        return u
-    out = np.zeros_like(u)
-    out[d:] = u[:-d]
-    return out
 
 
 def rotor_phase(f_hz: np.ndarray, fs: float) -> np.ndarray:
@@ -155,11 +152,6 @@ def regressors(spec: ModelSpec, data: ValidationData) -> np.ndarray | None:
     return np.hstack(cols) if cols else None
 
 
-def _predictor(model: IdentifiedModel, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """One-step prediction of an innovation-form model (Kalman predictor)."""
-    return model.predict(y, u if model.n_inputs else None)
-
-
 def _lpv_weights(theta: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Linear interpolation weights (N, K) over sorted operating points (clamped outside)."""
     k = points.size
@@ -170,142 +162,6 @@ def _lpv_weights(theta: np.ndarray, points: np.ndarray) -> np.ndarray:
     w[np.arange(th.size), j] = 1 - beta
     w[np.arange(th.size), j + 1] += beta
     return w
-
-
-@dataclass
-class FittedModel:
-    """A fitted structure: base DSRA model, LPV local models or the joint closed-loop model."""
-
-    spec: ModelSpec
-    order: int
-    model: IdentifiedModel | None = None
-    locals: list[tuple[float, IdentifiedModel]] = field(default_factory=list)
-    theta: np.ndarray | None = None  # (p, l) regressor coefficients
-    controller: np.ndarray | None = None  # least-squares controller (feedback)
-    n_outputs: int = 1
-    lpv: LpvModel | None = None
-    cubic_prior: FittedModel | None = None  # model whose one-step prediction feeds the cubic
-
-    # ---------------------------------------------------------------- input construction
-    def inputs(self, data: ValidationData, yc: np.ndarray) -> np.ndarray:
-        """Effective model inputs: the (delayed) measured input plus the cubic term."""
-        u = _shift(data.u, self.spec.delay)
-        if self.spec.cubic_channel is not None:
-            # the cubic force at t from the one-step prediction of y_t by the model without it
-            # (known before y_t arrives, and free of the measurement noise)
-            ch = self.spec.cubic_channel
-            prior = self.cubic_prior
-            z = prior.predict(data)[:, ch] - prior.additive(data)[:, ch]
-            u = np.hstack([u, z[:, None] ** 3])
-        return u
-
-    def reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Reconstructed reference r = u - controller(past y, past u) (feedback)."""
-        reg = _lagged(np.hstack([y, u]), self.spec.feedback_lags)
-        return u - reg @ self.controller
-
-    # ---------------------------------------------------------------- core predictor
-    def _core_predict(self, data: ValidationData, yc: np.ndarray, ue: np.ndarray) -> np.ndarray:
-        if self.spec.feedback:
-            r = self.reference(yc, ue)
-            return _predictor(self.model, np.hstack([yc, ue]), r)[:, : self.n_outputs]
-        if self.locals:
-            return self.lpv.run(data.signals[self.spec.lpv_signal], ue, yc)
-        return _predictor(self.model, yc, ue)
-
-    def additive(self, data: ValidationData) -> np.ndarray:
-        phi = regressors(self.spec, data)
-        if phi is None or self.theta is None:
-            return np.zeros((data.n, self.n_outputs))
-        return phi @ self.theta
-
-    def predict(self, data: ValidationData) -> np.ndarray:
-        """One-step-ahead prediction over the whole record (N, l)."""
-        add = self.additive(data)
-        yc = data.y - add
-        return add + self._core_predict(data, yc, self.inputs(data, yc))
-
-    def simulate(self, data: ValidationData) -> np.ndarray | None:
-        """Free-run simulation from the measured input (None for output-only data)."""
-        if data.n_inputs == 0:
-            return None
-        add = self.additive(data)
-        if self.spec.feedback:
-            r = self.reference(data.y - add, data.u)
-            m = self.model
-            y, _ = simulate_discrete(m.A, m.B, m.C, m.D, r)
-            return add + y[:, : self.n_outputs]
-        u = _shift(data.u, self.spec.delay)
-        if self.locals:
-            return add + self.lpv.run(data.signals[self.spec.lpv_signal], u, None)
-        m = self.model
-        if self.spec.cubic_channel is None:
-            return add + m.simulate(u)
-        return add + _simulate_cubic(m, u, self.spec.cubic_channel)
-
-    def residuals(self, data: ValidationData) -> np.ndarray:
-        return data.y - self.predict(data)
-
-    # ---------------------------------------------------------------- reporting
-    def modes(self) -> list:
-        if self.locals:
-            return self.locals[len(self.locals) // 2][1].modes
-        return self.model.modes if self.model is not None else []
-
-    def cubic_gain(self) -> float:
-        """Estimated cubic stiffness term relative to the input path: B_q ~ -k3 B_u."""
-        if self.spec.cubic_channel is None or self.model is None or self.model.n_inputs < 2:
-            return float("nan")
-        b = self.model.B
-        bu, bq = b[:, 0], b[:, -1]
-        return float(-(bq @ bu) / (bu @ bu))
-
-
-def _lagged(x: np.ndarray, lags: int) -> np.ndarray:
-    """[x_{t-1}, ..., x_{t-lags}] (N, lags * c), zeros before the start."""
-    n, c = x.shape
-    out = np.zeros((n, lags * c))
-    for k in range(1, lags + 1):
-        out[k:, (k - 1) * c : k * c] = x[:-k]
-    return out
-
-
-def _simulate_cubic(m: IdentifiedModel, u: np.ndarray, ch: int) -> np.ndarray:
-    """Free run of x+ = A x + B [u; y_ch^3], y = C x + D_u u (the cubic input is nonlinear
-    feedback of the simulated output, so this recursion runs sample by sample)."""
-    n = u.shape[0]
-    x = np.zeros(m.order)
-    du = m.D[:, : u.shape[1]]
-    bu, bq = m.B[:, : u.shape[1]], m.B[:, -1]
-    y = np.empty((n, m.n_outputs))
-    lim = 1e6
-    for k in range(n):
-        y[k] = m.C @ x + du @ u[k]
-        q = float(np.clip(y[k, ch], -lim, lim)) ** 3
-        x = m.A @ x + bu @ u[k] + bq * q
-        if not np.all(np.isfinite(x)):
-            y[k:] = np.nan
-            break
-    return y
-
-
-def _identify(
-    spec: ModelSpec, order: int | None, y: np.ndarray, u: np.ndarray, fs: float
-) -> IdentifiedModel:
-    try:
-        return identify(
-            y,
-            u if u.shape[1] else None,
-            fs=fs,
-            order=order,
-            block_rows=spec.block_rows,
-            order_method=spec.order_method,
-            band=spec.band,
-        )
-    except InputError as err:
-        raise ValidationError(f"identification failed: {err}") from None
-    except (np.linalg.LinAlgError, ValueError) as err:
-        raise ValidationError(f"identification failed: {' '.join(str(err).split())}") from None
 
 
 def modal_form(m: IdentifiedModel, ref_channel: int) -> tuple[np.ndarray, ...]:
@@ -405,103 +261,21 @@ def _longest_run(mask: np.ndarray) -> tuple[int, int]:
     return int(starts[k]), int(stops[k])
 
 
-def operating_points(theta: np.ndarray, k: int, min_len: int) -> list[tuple[float, int, int]]:
+def operating_points(
+    theta: np.ndarray, k: int, min_len: int, allowed: np.ndarray | None = None
+) -> list[tuple[float, int, int]]:
     """Up to k operating points of the scheduling signal: (value, start, stop) of the longest
-    stretch of data near each quantile (the local experiments of Sec. IV)."""
-    lo, hi = np.min(theta), np.max(theta)
+    stretch of (``allowed``, e.g. estimation) samples near each quantile (the local
+    experiments of Sec. IV)."""
+    ok = np.ones(theta.size, bool) if allowed is None else allowed
+    th = theta[ok]
+    lo, hi = np.min(th), np.max(th)
     tol = 0.5 * (hi - lo) / k if hi > lo else 1.0
     out = []
     for q in (np.arange(k) + 0.5) / k:
-        c = float(np.quantile(theta, q))
-        a, b = _longest_run(np.abs(theta - c) <= tol)
+        c = float(np.quantile(th, q))
+        a, b = _longest_run((np.abs(theta - c) <= tol) & ok)
         if b - a >= min_len and all(abs(c - p) > 1e-9 for p, _, _ in out):
             out.append((float(np.mean(theta[a:b])), a, b))
     out.sort()
     return out
-
-
-def fit(spec: ModelSpec, data: ValidationData, n_est: int) -> FittedModel:
-    """Identify the structure ``spec`` on samples [0, n_est) of ``data``."""
-    l = data.n_outputs
-    order = None if spec.order is None else spec.order + spec.extra_order
-    phi = regressors(spec, data)
-    fm = FittedModel(spec, order or 0, n_outputs=l)
-    if spec.cubic_channel is not None:
-        if not 0 <= spec.cubic_channel < l:
-            raise ValidationError(f"nonlinear_stiffness: no output channel {spec.cubic_channel}")
-        fm.cubic_prior = fit(replace(spec, cubic_channel=None), data, n_est)
-    y = data.y
-    if phi is not None:  # first pass: plain least squares on the raw outputs
-        fm.theta, *_ = np.linalg.lstsq(phi[:n_est], y[:n_est], rcond=None)
-    passes = 2 if phi is not None else 1
-    for _ in range(passes):
-        yc = y - fm.additive(data)
-        ue = fm.inputs(data, yc)
-        _fit_core(fm, data, yc, ue, n_est, order)
-        if phi is not None:
-            _refine_theta(fm, data, phi, yc, ue, n_est)
-    return fm
-
-
-def _fit_core(
-    fm: FittedModel,
-    data: ValidationData,
-    yc: np.ndarray,
-    ue: np.ndarray,
-    n_est: int,
-    order: int | None,
-) -> None:
-    spec = fm.spec
-    if spec.feedback:
-        if data.n_inputs == 0:
-            raise ValidationError("feedback needs an input topic (closed-loop data)")
-        reg = _lagged(np.hstack([yc, ue]), spec.feedback_lags)[:n_est]
-        fm.controller, *_ = np.linalg.lstsq(
-            reg[spec.feedback_lags :], ue[spec.feedback_lags : n_est], rcond=None
-        )
-        r = fm.reference(yc, ue)
-        joint_order = None if order is None else order + 2
-        fm.model = _identify(spec, joint_order, np.hstack([yc, ue])[:n_est], r[:n_est], data.fs)
-        fm.order = fm.model.order
-        return
-    if spec.lpv_signal is not None:
-        if spec.lpv_signal not in data.signals:
-            raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
-        theta = data.signals[spec.lpv_signal][:n_est]
-        min_len = 2 * spec.block_rows * (1 + data.n_inputs + data.n_outputs) + 50
-        pts = operating_points(theta, spec.lpv_points, min_len)
-        if len(pts) < 2:
-            raise ValidationError(
-                f"parameter_varying: fewer than 2 operating points of {spec.lpv_signal} with "
-                f">= {min_len} samples in the estimation part"
-            )
-        fm.locals = [(p, _identify(spec, order, yc[a:b], ue[a:b], data.fs)) for p, a, b in pts]
-        fm.lpv = LpvModel.from_locals(fm.locals)
-        fm.order = fm.locals[0][1].order
-        return
-    m = _identify(spec, order, yc[:n_est], ue[:n_est], data.fs)
-    fm.model = m
-    fm.order = m.order
-
-
-def _refine_theta(
-    fm: FittedModel,
-    data: ValidationData,
-    phi: np.ndarray,
-    yc: np.ndarray,
-    ue: np.ndarray,
-    n_est: int,
-) -> None:
-    """theta += argmin || e - F(Phi) dtheta || on the estimation part, F the innovation filter."""
-    l = data.n_outputs
-    e = (yc - fm._core_predict(data, yc, ue))[:n_est]
-    zero_u = np.zeros_like(ue)
-    cols = []
-    for j in range(phi.shape[1]):
-        for c in range(l):
-            x = np.zeros((data.n, l))
-            x[:, c] = phi[:, j]
-            cols.append((x - fm._core_predict(data, x, zero_u))[:n_est].ravel())
-    design = np.column_stack(cols)
-    d, *_ = np.linalg.lstsq(design, e.ravel(), rcond=None)
-    fm.theta = fm.theta + d.reshape(phi.shape[1], l)

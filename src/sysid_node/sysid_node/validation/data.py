@@ -143,3 +143,109 @@ def load_bag(
         in_names,
         signals,
     )
+
+
+def _columns(spec: str | None, names: list[str], flag: str) -> list[int]:
+    """Column indices from '0,2' or header names 'V1,V2' ('' or None: none)."""
+    if not spec:
+        return []
+    out = []
+    for item in (s.strip() for s in spec.split(",")):
+        if item.lstrip("-").isdigit():
+            k = int(item)
+            if not 0 <= k < len(names):
+                raise ValidationError(f"{flag}: no column {k} (the file has {len(names)})")
+            out.append(k)
+        elif item in names:
+            out.append(names.index(item))
+        else:
+            raise ValidationError(f"{flag}: no column {item!r}; columns: {', '.join(names)}")
+    return out
+
+
+def _read_table(path: str) -> tuple[np.ndarray, list[str]]:
+    """(N, c) float table and column names from .npy or delimited text (optional header)."""
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValidationError(f"data file {path} not found")
+    try:
+        if p.suffix == ".npy":
+            x = np.load(p, allow_pickle=False)
+            x = x[:, None] if x.ndim == 1 else x
+            if x.ndim != 2 or not np.issubdtype(x.dtype, np.number):
+                raise ValidationError(f"{path}: expected a numeric (N, channels) array")
+            return x.astype(float), [str(k) for k in range(x.shape[1])]
+        with open(p) as fh:
+            first = fh.readline()
+            second = fh.readline()
+        delim = "," if "," in second else (";" if ";" in second else None)
+        fields = [f.strip() for f in (second.split(delim) if delim else second.split())]
+        usecols = [k for k, f in enumerate(fields) if f]
+        try:
+            [float(f) for f in (first.split(delim) if delim else first.split()) if f.strip()]
+            header, skip = None, 0
+        except ValueError:
+            parts = first.split(delim) if delim else first.split()
+            header, skip = [f.strip().strip('"').strip("'") for f in parts], 1
+        x = np.loadtxt(p, delimiter=delim, skiprows=skip, usecols=usecols, ndmin=2)
+    except (OSError, ValueError) as err:
+        raise ValidationError(f"cannot read {path}: {' '.join(str(err).split())}") from None
+    names = [header[k] if header and k < len(header) and header[k] else str(k) for k in usecols]
+    return x, names
+
+
+def load_arrays(
+    path: str,
+    rate: float,
+    outputs: str | None = None,
+    inputs: str | None = None,
+    signals: str | None = None,
+    rows: str | None = None,
+    remove_mean: bool = False,
+) -> ValidationData:
+    """Plain arrays as validation data: a .npy (N, c) array or a delimited text file (.csv,
+    optional header line) sampled at ``rate`` [Hz]. ``outputs`` / ``inputs`` / ``signals`` pick
+    columns by index or header name (outputs default: every column that is not an input or a
+    signal); ``rows`` 'START:STOP' keeps a slice (0-based, half-open); ``remove_mean``
+    subtracts each column's mean (offset errors of the acquisition; it also hides a sensor
+    offset from the diagnosis)."""
+    if not (np.isfinite(rate) and rate > 0):
+        raise ValidationError(f"--rate must be a positive sample rate [Hz], got {rate}")
+    x, names = _read_table(path)
+    if rows:
+        a, sep, b = rows.partition(":")
+        try:
+            sl = slice(int(a) if a.strip() else None, int(b) if sep and b.strip() else None)
+        except ValueError:
+            raise ValidationError(f"--rows expects START:STOP, got {rows!r}") from None
+        x = x[sl]
+    ic = _columns(inputs, names, "--inputs")
+    sc = _columns(signals, names, "--signals")
+    oc = _columns(outputs, names, "--outputs") or [
+        k for k in range(len(names)) if k not in ic and k not in sc
+    ]
+    if not oc:
+        raise ValidationError("no output column (use --outputs)")
+    if set(oc) & set(ic):
+        raise ValidationError("a column cannot be both an output and an input")
+    if x.shape[0] < 2:
+        raise ValidationError(f"{path}: fewer than 2 rows")
+    if remove_mean:
+        x = x - x.mean(axis=0)
+    bad = ~np.isfinite(x[:, oc + ic]).all(axis=1)
+    if bad.any():
+        raise ValidationError(
+            f"{path}: {int(bad.sum())} row(s) with NaN/Inf, first at row {int(np.argmax(bad))}"
+        )
+    t = np.arange(x.shape[0]) / float(rate)
+    return ValidationData(
+        t,
+        x[:, oc],
+        x[:, ic] if ic else np.zeros((x.shape[0], 0)),
+        float(rate),
+        [names[k] for k in oc],
+        [names[k] for k in ic],
+        {names[k]: x[:, k] for k in sc},
+    )

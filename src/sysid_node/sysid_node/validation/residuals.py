@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, stats
+from scipy import linalg, signal, stats
 
 Z99 = 2.5758293035489  # two-sided 99 % normal quantile
 ALPHA = 0.01
@@ -29,6 +29,12 @@ def nrmse_fit(y: np.ndarray, yhat: np.ndarray) -> np.ndarray:
     num = np.linalg.norm(y - yhat, axis=0)
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
     return 100.0 * (1.0 - num / np.where(den > 0, den, np.nan))
+
+
+def lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-squares solution by pivoted QR (LAPACK gelsy through scipy; numpy's SVD-based
+    lstsq was 100x slower on some regression matrices here)."""
+    return linalg.lstsq(a, b, lapack_driver="gelsy", check_finite=False)[0]
 
 
 def rms(x: np.ndarray) -> np.ndarray:
@@ -84,7 +90,7 @@ def prewhiten(u: np.ndarray, order: int = 10) -> tuple[np.ndarray, np.ndarray]:
     u = u - u.mean()
     order = min(order, max(1, u.size // 10))
     reg = np.lib.stride_tricks.sliding_window_view(u, order)[:-1][:, ::-1]
-    a, *_ = np.linalg.lstsq(reg, u[order:], rcond=None)
+    a = lstsq(reg, u[order:])
     w = u.copy()
     w[order:] = u[order:] - reg @ a
     w[:order] = 0.0
@@ -135,14 +141,27 @@ def cross_correlation(
     )
 
 
+def whitened(e: np.ndarray, *others: np.ndarray, order: int = 10) -> list[np.ndarray]:
+    """e and ``others`` filtered by the AR(order) whitening filter of e (prewhitening: a
+    correlation test between a coloured error and a regressor then has its white-noise null
+    distribution). The first ``order`` samples are dropped."""
+    _, a = prewhiten(e, order)
+    filt = np.concatenate([[1.0], -a])
+    out = [signal.lfilter(filt, [1.0], np.asarray(x, float) - np.mean(x))[a.size :] for x in
+           (e, *others)]
+    return out
+
+
 def higher_order_correlation(
-    e: np.ndarray, z: np.ndarray, max_lag: int = 10
+    e: np.ndarray, z: np.ndarray, max_lag: int = 10, colored: bool = False
 ) -> tuple[np.ndarray, float, float]:
     """Billings-Voon type test corr(e_t, z'_{t - k}), k = 1..L, z' the cubic Hermite term.
 
     ``z`` is a measured signal (an output channel); He3(z / s) = (z / s)^3 - 3 z / s is
     uncorrelated with z itself for a Gaussian z, so a significant correlation of the one-step
-    residual with its past values points to a missing cubic term. Returns (r, bound, p-value).
+    residual with its past values points to a missing cubic term. ``colored``: e is a coloured
+    error (a free run's), both are prewhitened by e's AR filter first, lags 0..L then (the free
+    run's error answers the force at once). Returns (r, bound, p-value).
     """
     e = np.asarray(e, float).ravel()
     z = np.asarray(z, float).ravel()
@@ -151,6 +170,12 @@ def higher_order_correlation(
     he3 = zn**3 - 3.0 * zn
     # remove the linear part left by a non-Gaussian z
     he3 = he3 - zn * (he3 @ zn) / (zn @ zn)
+    if colored:
+        e, he3 = whitened(e, he3)
+        c = _xcorr_fft(e, he3, max_lag)[max_lag:]
+        n = e.size
+        q = float(n * np.sum(c**2))
+        return c, Z99 / np.sqrt(n), float(stats.chi2.sf(q, max_lag + 1))
     r = _xcorr_fft(e, he3, max_lag)[max_lag + 1 :]
     n = e.size
     q = float(n * np.sum(r**2))
@@ -287,7 +312,7 @@ def line_fraction(e: np.ndarray, fs: float, f0: float, rel_band: float = 0.1) ->
     k = int(np.argmax(amp))
     f1 = float(grid[k])
     reg = np.column_stack([np.cos(2 * np.pi * f1 * t), np.sin(2 * np.pi * f1 * t)])
-    th, *_ = np.linalg.lstsq(reg, e, rcond=None)
+    th = lstsq(reg, e)
     fit = reg @ th
     b, a = signal.butter(
         2, [f0 * (1 - rel_band), min(f0 * (1 + rel_band), 0.49 * fs)], "bandpass", fs=fs
@@ -317,9 +342,49 @@ def granger_feedback(u: np.ndarray, y: np.ndarray, lags: int = 10) -> tuple[floa
     target = u[lags:] - u[lags:].mean()
     x_r = lagged(u[:, None] - u.mean())
     x_f = np.hstack([x_r, lagged(y - y.mean(axis=0))])
-    ss_r = float(np.sum((target - x_r @ np.linalg.lstsq(x_r, target, rcond=None)[0]) ** 2))
-    ss_f = float(np.sum((target - x_f @ np.linalg.lstsq(x_f, target, rcond=None)[0]) ** 2))
+    ss_r = float(np.sum((target - x_r @ lstsq(x_r, target)) ** 2))
+    ss_f = float(np.sum((target - x_f @ lstsq(x_f, target)) ** 2))
     q = x_f.shape[1] - x_r.shape[1]
     dof = target.size - x_f.shape[1]
     f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
     return float(f), float(stats.f.sf(f, q, dof))
+
+
+@dataclass
+class ErrorComparison:
+    """Is error e1 smaller than e0? Relative drop of the RMS and a one-sided p-value."""
+
+    drop: float  # 1 - rms(e1) / rms(e0), channels weighted by 1 / var(y)
+    p_value: float  # H0: E[loss(e1)] >= E[loss(e0)]
+    batches: int
+
+
+def compare_errors(
+    e0: np.ndarray, e1: np.ndarray, scale: np.ndarray | None = None, batches: int = 10
+) -> ErrorComparison:
+    """Diebold-Mariano comparison of two error sequences on the same samples.
+
+    The loss differential d_t = sum_c (e0_ct^2 - e1_ct^2) / s_c^2 is averaged over ``batches``
+    contiguous batches (batch means absorb the autocorrelation of model errors); t = mean /
+    (sd / sqrt(B)) is compared with Student's t with B - 1 degrees of freedom.
+    """
+    e0 = np.atleast_2d(np.asarray(e0, float).T).T
+    e1 = np.atleast_2d(np.asarray(e1, float).T).T
+    s2 = np.ones(e0.shape[1]) if scale is None else np.maximum(np.asarray(scale) ** 2, 1e-300)
+    l0 = np.sum(e0**2 / s2, axis=1)
+    l1 = np.sum(e1**2 / s2, axis=1)
+    if not np.all(np.isfinite(l1)):
+        return ErrorComparison(0.0, 1.0, 0)  # the new error diverges: no improvement
+    if not np.all(np.isfinite(l0)):
+        return ErrorComparison(1.0, 0.0, 0)  # the old one diverged, the new one is bounded
+    tot0 = float(np.sum(l0))
+    drop = 1.0 - float(np.sqrt(np.sum(l1) / tot0)) if tot0 > 0 else 0.0
+    b = int(max(2, min(batches, l0.size // 10)))
+    k = l0.size // b
+    d = (l0[: b * k] - l1[: b * k]).reshape(b, k).mean(axis=1)
+    sd = float(np.std(d, ddof=1))
+    mean = float(np.mean(d))
+    if sd <= 0:
+        return ErrorComparison(drop, 0.0 if mean > 0 else 1.0, b)
+    t = mean / (sd / np.sqrt(b))
+    return ErrorComparison(drop, float(stats.t.sf(t, b - 1)), b)

@@ -1,0 +1,91 @@
+"""The cobra stick model (CSM) of Sec. IV with an instability, and its closed-loop experiment.
+
+The paper identifies the CSM open loop at 32 Hz rotor speed (modes 23, 32 and 36.8 Hz, printed
+in modal form (3)); its second mode "varies with rotor speed", the model "is unstable at
+approximately 36 Hz" and open-loop tests are not feasible between 34 and 37 Hz. (The Table-2
+structure :func:`~sysid_node.scenarios.paper.cobra_stick_at` moves the mode but is stable
+everywhere.) :func:`csm_at` keeps the printed model and makes that mode move: its stiffness is
+(2 pi theta)^2 for rotor speed theta [Hz], and it is coupled to the 36.6 Hz mode by a
+circulatory (non-symmetric) stiffness ``coupling`` [1/s^2], the mechanism of ground resonance
+and flutter: where the two frequencies come close they coalesce and one loses its damping. With
+the default coupling the open loop is unstable for rotor speeds of about 35.7 to 37.4 Hz
+(damping down to -0.8 %).
+
+:func:`closed_loop_experiment` is the Sec. IV experiment: white test input (reference) r,
+unmeasured white disturbance at the plant input (rotor and aerodynamic loads), sensor noise,
+and a known controller (:class:`~sysid_node.core.controller.DiscreteController`,
+u = r + K y), simulated by :func:`~sysid_node.scenarios.closedloop.simulate_closed_loop`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.closed_loop import ClosedLoopData
+from ..core.controller import DiscreteController
+from ..core.lti import ContinuousSystem
+from .closedloop import DiscreteController as LoopController
+from .closedloop import closed_loop_matrices, simulate_closed_loop
+from .paper import cobra_stick_model
+
+#: Circulatory stiffness coupling the moving mode and the 36.6 Hz mode [1/s^2].
+CSM_COUPLING = 1200.0
+#: Damping ratio of the moving mode (the paper: "neutrally stable ... in fact lightly damped").
+CSM_MOVING_DAMPING = 0.0015
+#: Sample rate of the CSM experiments [Hz] (about 7 samples per period of the 38 Hz mode).
+CSM_FS = 256.0
+#: The paper's rotor-speed range [Hz].
+CSM_RANGE = (32.0, 38.0)
+
+
+def csm_at(rotor_speed_hz: float, coupling: float = CSM_COUPLING,
+           moving_damping: float = CSM_MOVING_DAMPING) -> ContinuousSystem:
+    """Cobra stick model at rotor speed ``rotor_speed_hz``: 2 inputs, 2 outputs, 6 states.
+
+    States as printed in the paper (blocks [[0, -1], [w^2, -2 zeta w]]); the second block's
+    w = 2 pi theta, plus the circulatory terms +coupling (block 2 <- block 3 displacement)
+    and -coupling (block 3 <- block 2)."""
+    base = cobra_stick_model()
+    a = base.A.copy()
+    w2 = (2 * np.pi * float(rotor_speed_hz)) ** 2
+    a[3, 2] = w2
+    a[3, 3] = -2 * moving_damping * np.sqrt(w2)
+    a[3, 4] = coupling
+    a[5, 2] = -coupling
+    return ContinuousSystem(a, base.B, base.C, base.D)
+
+
+def loop_controller(k: DiscreteController) -> LoopController:
+    """The same controller in the simulator's form (u = r - K' e, e = y delayed one sample):
+    for D = 0, x_k = A x_{k-1} + B y_{k-1}, so with x'_k = x_{k-1}: A' = A, B' = B,
+    C' = -C A, D' = -C B."""
+    if k.D.any():
+        raise ValueError("the experiment needs a strictly proper controller (D = 0)")
+    return LoopController(k.A, k.B, -k.C @ k.A, -k.C @ k.B)
+
+
+def closed_loop_experiment(
+    plant: ContinuousSystem,
+    controller: DiscreteController | None,
+    duration_s: float,
+    rng: np.random.Generator,
+    fs: float = CSM_FS,
+    reference_std: float = 1.0,
+    disturbance_std: float = 0.2,
+    noise_fraction: float = 0.05,
+) -> ClosedLoopData:
+    """Sec. IV experiment on ``plant`` (ZOH at ``fs``): white reference and input disturbance
+    (std relative to the reference), sensor noise ``noise_fraction`` of each noise-free
+    output's std; ``controller=None`` is the open-loop experiment. Returns r, u, y and the
+    true closed loop's spectral radius."""
+    m, l = plant.n_inputs, plant.n_outputs
+    k = (LoopController.static(np.zeros((m, l))) if controller is None
+         else loop_controller(controller))
+    n = int(round(duration_s * fs))
+    r = reference_std * rng.standard_normal((n, m))
+    w = disturbance_std * reference_std * rng.standard_normal((n, m))
+    clean, _ = simulate_closed_loop(plant, k, r, fs, w=w)
+    v = noise_fraction * np.std(clean, axis=0) * rng.standard_normal((n, l))
+    y, u = simulate_closed_loop(plant, k, r, fs, w=w, v=v)
+    a = closed_loop_matrices(plant, k, fs)[0]
+    return ClosedLoopData(r, u, y, fs, float(np.max(np.abs(np.linalg.eigvals(a)))))

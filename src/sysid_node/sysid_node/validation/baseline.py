@@ -1,0 +1,270 @@
+"""The baseline: the linear DSRA model worth diagnosing.
+
+Order n and block rows i (the horizon of (A1)) are chosen by the error of the prediction the
+user asks about, on data the model was not fitted to: the estimation part is split once more,
+candidates are fitted on its first part (one QR per horizon, every order realized from it) and
+scored on its held-out tail. With an input the score is the free-run (simulation) error, B and
+D solved on the simulation error (:mod:`.simulation`); without one (output-only), or when the
+input is not exogenous (closed loop), it is the one-step prediction error. The smallest order
+(then horizon) whose error is within 5 % of the best one's and not significantly larger
+(Diebold-Mariano, :func:`.residuals.compare_errors`) wins: the best linear level without the
+needless states that would absorb a missing effect.
+
+Candidates with an unstable A (no bounded free run) or an unstable predictor A - K C are
+discarded; the winner is refitted on the whole estimation part and, if that refit is unstable,
+the next candidate is taken. Only when every candidate is unstable are the unstable poles
+reflected into the unit circle (|z| -> 1/|z|, same frequency) and B, D refitted, and the report
+says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..core.realization import kalman_gain
+from . import residuals as rs
+from .augment import ModelSpec
+from .data import ValidationData, ValidationError
+from .models import FittedModel, data_projection, fit, shift
+from .simulation import LinearDynamics, fit_output_error, simulate_linear, spectral_radius
+from .split import Split
+
+SELECTION_FRACTION = 0.25  # held-out tail of the estimation part
+HORIZONS = (10, 20, 40)  # candidate block rows i (clipped to the data)
+MAX_COLUMNS = 240  # largest stacked window 2 i (m + l): QR cost N x (2 i (m + l))^2
+MIN_WINDOWS_PER_COLUMN = 8  # the fit part must hold >= 8 x 2 i (m + l) windows
+MAX_ORDER = 40
+PATIENCE = 8  # stop scanning orders 8 past the best one
+P_WORSE = 0.01  # a candidate is "not worse" than the best unless p < 0.01 ...
+NEAR_BEST = 1.05  # ... and its error is within 5 % of the best one's
+
+
+@dataclass
+class Candidate:
+    """One (block rows, order) candidate scored on the held-out tail."""
+
+    block_rows: int
+    order: int
+    free_run_nrmse: float  # mean over channels (NaN without input or unstable)
+    one_step_nrmse: float
+    stable: bool
+    reason: str = ""
+    free_err: np.ndarray | None = field(default=None, repr=False)
+    one_err: np.ndarray | None = field(default=None, repr=False)
+
+    def score(self, criterion: str) -> float:
+        """Held-out NRMSE of the criterion's prediction (inf when it is unbounded)."""
+        v = self.free_run_nrmse if criterion == "free_run" else self.one_step_nrmse
+        return v if np.isfinite(v) else np.inf
+
+    def to_dict(self) -> dict:
+        return {
+            "block_rows": self.block_rows,
+            "order": self.order,
+            "free_run_nrmse": _finite_or_none(self.free_run_nrmse),
+            "one_step_nrmse": _finite_or_none(self.one_step_nrmse),
+            "stable": self.stable,
+            "reason": self.reason,
+        }
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+@dataclass
+class BaselineChoice:
+    """What was chosen and why (printed and written to the JSON)."""
+
+    block_rows: int
+    order: int
+    criterion: str  # "free_run" or "one_step"
+    candidates: list[Candidate]
+    n_fit: int
+    note: str = ""
+    n_sel: int = 0
+
+    def summary(self) -> dict:
+        return {
+            "block_rows": self.block_rows,
+            "order": self.order,
+            "criterion": self.criterion,
+            "fit_samples": self.n_fit,
+            "held_out_samples": self.n_sel,
+            "note": self.note,
+            "candidates": [c.to_dict() for c in self.candidates],
+        }
+
+
+def horizons(
+    n_fit: int, m: int, l: int, order: int | None, fixed: int | None, shortest: int | None = None
+) -> list[int]:
+    """Candidate block rows: ``fixed``, or :data:`HORIZONS` clipped to the data and cost,
+    each able to realize ``order`` (l (i - 1) >= n) and leaving windows in the ``shortest``
+    estimation segment."""
+    if fixed is not None:
+        return [int(fixed)]
+    width = 2 * (m + l)
+    top = min(MAX_COLUMNS // width, n_fit // (MIN_WINDOWS_PER_COLUMN * width))
+    if shortest is not None:
+        top = min(top, (shortest - 1) // 4)
+    low = 2 if order is None else int(np.ceil(order / l)) + 1
+    out = sorted({min(max(i, low), top) for i in HORIZONS if top >= low})
+    if not out:
+        raise ValidationError(
+            f"record too short for a model of order {order or 1}: {n_fit} samples to fit "
+            f"{l} output(s) and {m} input(s)"
+        )
+    return out
+
+
+def _nrmse(y: np.ndarray, e: np.ndarray) -> float:
+    den = np.linalg.norm(y - y.mean(axis=0), axis=0)
+    return float(np.mean(np.linalg.norm(e, axis=0) / np.where(den > 0, den, np.nan)))
+
+
+def _score_orders(
+    data: ValidationData, inner: Split, i: int, orders: list[int], criterion: str
+) -> list[Candidate]:
+    """Realize every order from one projection of the fit samples, score on the held-out."""
+    n_sim = int(inner.val[-1]) + 1  # nothing after the last held-out sample is needed
+    y, u = data.y[:n_sim], data.u[:n_sim]
+    dp = data_projection(y, u, data.fs, i, inner.est_segments)
+    out: list[Candidate] = []
+    best, best_n = np.inf, 0
+    sel = inner.val
+    yv = y[sel]
+    for n in orders:
+        if n > dp.max_order:
+            break
+        if best_n and n > best_n + PATIENCE:
+            break
+        try:
+            m = dp.model(n)
+        except (ValidationError, np.linalg.LinAlgError, ValueError) as err:
+            out.append(Candidate(i, n, np.nan, np.nan, False, f"realization failed: {err}"))
+            continue
+        if spectral_radius(m.A - m.K @ m.C) >= 1.0:
+            out.append(Candidate(i, n, np.nan, np.nan, False, "unstable predictor A - KC"))
+            continue
+        with np.errstate(all="ignore"):
+            yhat = m.predict(y, u if data.n_inputs else None)
+        one_err = yv - yhat[sel]
+        one = _nrmse(yv, one_err)
+        free, free_err, stable, reason = np.nan, None, True, ""
+        if criterion == "free_run":
+            if spectral_radius(m.A) >= 1.0:
+                stable, reason = False, "unstable A (no bounded free run)"
+            else:
+                dyn = LinearDynamics.build(m.A, m.C, n_sim)
+                oe = fit_output_error(dyn, y, u, inner.est)
+                free_err = yv - simulate_linear(dyn, oe.B, oe.D, u, oe.x0)[sel]
+                free = _nrmse(yv, free_err)
+        c = Candidate(i, n, free, one, stable and np.isfinite(one), reason, free_err, one_err)
+        out.append(c)
+        s = free if criterion == "free_run" else one
+        if np.isfinite(s) and s < best:
+            best, best_n = s, n
+    return out
+
+
+def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[Candidate]:
+    """Candidates ranked: the parsimonious choice first, then the others by score."""
+    ok = [c for c in cands if np.isfinite(c.score(criterion))]
+    if not ok:
+        return []
+    best = min(ok, key=lambda c: c.score(criterion))
+    key = "free_err" if criterion == "free_run" else "one_err"
+    not_worse = []
+    for c in ok:
+        if c is best:
+            not_worse.append(c)
+            continue
+        if c.score(criterion) > NEAR_BEST * best.score(criterion):
+            continue
+        cmp = rs.compare_errors(getattr(c, key), getattr(best, key), scale)
+        if cmp.p_value >= P_WORSE:  # best is not significantly better than c
+            not_worse.append(c)
+    first = min(not_worse, key=lambda c: (c.order, c.score(criterion), c.block_rows))
+    rest = sorted((c for c in ok if c is not first), key=lambda c: c.score(criterion))
+    return [first, *rest]
+
+
+def select_baseline(
+    data: ValidationData,
+    split: Split,
+    spec: ModelSpec,
+    order: int | None = None,
+    block_rows: int | None = None,
+    criterion: str | None = None,
+) -> tuple[FittedModel, BaselineChoice]:
+    """Fit the baseline on the estimation samples: order/horizon given or chosen as described
+    above. ``criterion``: "free_run" (default with an input) or "one_step" (output-only, or
+    closed-loop data whose input is not exogenous)."""
+    if criterion is None:
+        criterion = "free_run" if data.n_inputs else "one_step"
+    inner = split.inner(SELECTION_FRACTION)
+    n_fit = inner.n_est
+    l, m = data.n_outputs, data.n_inputs
+    shortest = min(b - a for a, b in inner.est_segments)
+    cands: list[Candidate] = []
+    for i in horizons(n_fit, m, l, order, block_rows, shortest):
+        top = min(l * (i - 1), MAX_ORDER)
+        orders = [order] if order is not None else list(range(1, top + 1))
+        cands += _score_orders(data, inner, i, orders, criterion)
+    scale = np.std(data.y[inner.val], axis=0)
+    ranked = _choose(cands, criterion, scale)
+    n_sel = inner.n_val
+    spec = replace(spec, focus=criterion)
+    for c in ranked:
+        fm = fit(replace(spec, order=c.order, block_rows=c.block_rows), data, split)
+        if fm.stable(free_run=criterion == "free_run"):
+            note = _note(c, ranked, criterion, order)
+            return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
+    # every candidate unstable on refit: reflect the unstable poles of the best one
+    c = ranked[0] if ranked else _fallback(cands, order, spec)
+    fm = fit(replace(spec, order=c.order, block_rows=c.block_rows), data, split)
+    fm = stabilise(fm, data, split)
+    note = f"every candidate was unstable; order {c.order}: unstable poles reflected, B, D refit"
+    return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
+
+
+def _fallback(cands: list[Candidate], order: int | None, spec: ModelSpec) -> Candidate:
+    if order is None:
+        raise ValidationError("no stable linear model of any order fits the estimation part")
+    br = cands[0].block_rows if cands else spec.block_rows
+    return Candidate(br, order, np.nan, np.nan, False)
+
+
+def _note(c: Candidate, ranked: list[Candidate], criterion: str, order: int | None) -> str:
+    what = "free-run" if criterion == "free_run" else "one-step"
+    best = min(ranked, key=lambda x: x.score(criterion))
+    how = "given" if order is not None else "chosen"
+    return (
+        f"order {c.order} ({how}), block rows {c.block_rows}: held-out {what} NRMSE "
+        f"{100 * c.score(criterion):.1f} % (best candidate {100 * best.score(criterion):.1f} % "
+        f"at order {best.order}, block rows {best.block_rows})"
+    )
+
+
+def stabilise(fm: FittedModel, data: ValidationData, split: Split) -> FittedModel:
+    """Reflect eigenvalues of A outside the unit circle to 1/conj(z) and refit B, D, x0 on the
+    simulation error (a bounded free run with the same frequencies)."""
+    m = fm.model
+    lam, v = np.linalg.eig(m.A)
+    bad = np.abs(lam) >= 1.0
+    r = np.maximum(np.abs(lam), 1e-300)
+    lam = np.where(bad, lam / r * np.minimum(1.0 / r, 0.999), lam)
+    a = np.real(v @ np.diag(lam) @ np.linalg.inv(v))
+    k, re = kalman_gain(a, m.C, m.Q, m.S, m.R)
+    fm.model = replace(m, A=a, K=k, innovation_covariance=re)
+    fm._dyn = None
+    if data.n_inputs:
+        dyn = fm.dynamics(data.n)
+        u = shift(data.u, fm.spec.delay)
+        oe = fit_output_error(dyn, data.y, u, split.est)
+        fm.model = replace(fm.model, B=oe.B, D=oe.D)
+        fm.x0 = oe.x0
+    return fm

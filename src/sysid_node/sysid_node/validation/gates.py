@@ -1,0 +1,541 @@
+"""The symptom of each effect of the vocabulary: a statistical test on the validation error of
+the current model (the gate) and the effect's parameters estimated from it.
+
+=====================  =======================================================================
+missing_mode           narrow-band residual peak above the 99.9 % noise-floor bound, not a line,
+                       not at a mode of the model or a harmonic of a rotating speed
+periodic_disturbance   harmonics of a candidate rotating speed (or a fixed line) explaining
+                       residual variance (F-test)
+parameter_varying      residual power depending on a candidate scheduling signal (F-test)
+input_delay            residual correlated with past inputs (cross-correlation portmanteau)
+nonlinear_stiffness    residual correlated with the cubic Hermite term of an output
+                       (higher-order correlation test)
+sensor_bias            non-zero mean or trend of the model's error (t-tests on block means)
+feedback               the model's innovations predicting the input beyond the input's own past
+                       and the model's free run (conditional Granger F-test): a coloured,
+                       multisine or swept input in open loop is predictable from its own past,
+                       never from the output noise
+=====================  =======================================================================
+
+Each gate returns a :class:`Hypothesis` with its p-value, evidence and parameters; the trial
+re-fit that confirms it lives in :mod:`.diagnose`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal, stats
+
+from . import residuals as rs
+from .assess import Assessment
+from .augment import rotor_phase
+from .data import ValidationData
+from .models import FittedModel, lagged, shift
+from .simulation import integrate, pole_sensitivity
+from .split import Split
+
+P_GATE = 1e-2
+FEEDBACK_ERROR_LAGS = 5  # innovation lags of the feedback test
+#: Closed loop for the choice of the scored prediction: past innovations explain at least 10 %
+#: of the input's variance left by its own past (a model error that is a function of the input
+#: leaks a little into the innovations; a controller puts a large share there).
+CLOSED_LOOP_SHARE = 0.1
+NEAR_MODE = 0.05  # a residual peak within 5 % of a model mode is that mode's error
+SHIFT_BAND = 2.0  # the mode-shift test looks an octave below and above a mode
+
+
+@dataclass
+class Hypothesis:
+    """One candidate missing effect."""
+
+    effect: str
+    score: float = 0.0  # relative drop of the primary validation error by the trial re-fit
+    significant: bool = False
+    evidence: str = ""
+    parameters: dict = field(default_factory=dict)
+    p_value: float = 1.0  # of the gate
+    drop_p: float = 1.0  # of the trial's error drop (Diebold-Mariano)
+    trial: FittedModel | None = None
+    trial_note: str = ""
+
+    def to_dict(self) -> dict:
+        return {
+            "effect": self.effect,
+            "score": round(float(self.score), 4),
+            "significant": bool(self.significant),
+            "p_value": float(self.p_value),
+            "drop_p_value": float(self.drop_p),
+            "evidence": self.evidence,
+            "trial": self.trial_note,
+            "parameters": jsonable(self.parameters),
+        }
+
+
+def jsonable(x):
+    """Plain JSON types; non-finite floats become None (never NaN in the output)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+@dataclass
+class Context:
+    """What every gate looks at: data, model, its validation errors, candidate signals."""
+
+    data: ValidationData
+    split: Split
+    current: FittedModel
+    assessment: Assessment
+    signals: dict[str, np.ndarray]
+
+    @property
+    def e(self) -> np.ndarray:
+        """One-step residual on the validation part (close to white for a right model)."""
+        return self.assessment.residual
+
+    @property
+    def errors(self) -> list[tuple[bool, np.ndarray]]:
+        """(coloured, error) pairs to test: the one-step residual, and the free-run error when
+        there is one (coloured: tests prewhiten it)."""
+        out = [(False, self.e)]
+        if self.assessment.free_error is not None:
+            out.append((True, self.assessment.free_error))
+        return out
+
+    @property
+    def tv(self) -> np.ndarray:
+        return self.data.t[self.split.val]
+
+    @property
+    def model_freqs(self) -> list[float]:
+        return [md.frequency_hz for md in self.current.modes()]
+
+
+# ------------------------------------------------------------------ sensor_bias
+def _block_means(e: np.ndarray, t: np.ndarray, blocks: int = 12) -> tuple[float, ...]:
+    """(offset, p offset, slope [1/s], p slope) from block means of e (robust to colour)."""
+    k = e.size // blocks
+    bm = e[: k * blocks].reshape(blocks, k).mean(axis=1)
+    bt = t[: k * blocks].reshape(blocks, k).mean(axis=1)
+    tt = stats.ttest_1samp(bm, 0.0)
+    lr = stats.linregress(bt, bm)
+    p_off = float(tt.pvalue) if np.isfinite(tt.pvalue) else 1.0
+    p_slope = float(lr.pvalue) if np.isfinite(lr.pvalue) else 1.0
+    return float(bm.mean()), p_off, float(lr.slope), p_slope
+
+
+def sensor_bias(ctx: Context) -> Hypothesis:
+    """Offset or drift of the primary error (the free run shows a sensor offset in full)."""
+    e = ctx.assessment.primary_error
+    h = Hypothesis("sensor_bias")
+    parts = []
+    best = 1.0
+    for c in range(e.shape[1]):
+        off, p_off, slope, p_slope = _block_means(e[:, c], ctx.tv)
+        best = min(best, p_off, p_slope)
+        parts.append(
+            f"ch{c}: mean {off:.3g} (p={p_off:.1e}), trend {slope:.3g}/s (p={p_slope:.1e})"
+        )
+    h.p_value = float(min(1.0, best * 2 * e.shape[1]))  # Bonferroni: 2 tests per channel
+    h.evidence = "error block means: " + "; ".join(parts)
+    return h
+
+
+# ------------------------------------------------------------------ periodic_disturbance
+def rotating_candidates(ctx: Context) -> list[str]:
+    """Signals that can be a rotating speed [Hz]: positive, below Nyquist, not too variable."""
+    out = []
+    for name, s in ctx.signals.items():
+        m = float(np.mean(s))
+        if 0.05 < m < 0.5 * ctx.data.fs and np.all(s > 0) and np.std(s) < 0.5 * m:
+            out.append(name)
+    return out
+
+
+def harmonic_test(e: np.ndarray, phi: np.ndarray, orders=(1, 2, 3, 4)) -> tuple:
+    """F-test of cos/sin(k phi) regressors on e: (p-value, R^2, significant orders)."""
+    n = e.size
+    x = np.column_stack([f(k * phi) for k in orders for f in (np.cos, np.sin)])
+    ec = e - e.mean()
+    th = rs.lstsq(x, ec)
+    ss_res = float(np.sum((ec - x @ th) ** 2))
+    ss_tot = float(np.sum(ec**2))
+    p = x.shape[1]
+    r2 = 1 - ss_res / ss_tot if ss_tot > 0 else 0.0
+    f = (r2 / p) / max((1 - r2) / (n - p - 1), 1e-300)
+    pval = float(stats.f.sf(f, p, n - p - 1))
+    sigma2 = ss_res / (n - p - 1)
+    sig = []
+    for i, k in enumerate(orders):  # each harmonic: chi2(2) on its amplitude (x'x ~ n/2 I)
+        a = th[2 * i : 2 * i + 2]
+        chi = float(np.sum(a**2) * (n / 2) / max(sigma2, 1e-300))
+        if stats.chi2.sf(chi, 2) < P_GATE:
+            sig.append(int(k))
+    return pval, r2, sig
+
+
+def periodic_disturbance(ctx: Context) -> tuple[Hypothesis, list, list]:
+    """Harmonics of a rotating speed, or a fixed line; also sorts the residual spectrum's
+    peaks into lines and mode-like peaks (returned for :func:`missing_mode`)."""
+    e, fs = ctx.e, ctx.data.fs
+    h = Hypothesis("periodic_disturbance")
+    best = None
+    cands = rotating_candidates(ctx)
+    for name in cands:
+        phi = rotor_phase(ctx.signals[name], fs)[ctx.split.val]
+        for c in range(e.shape[1]):
+            p, r2, sig = harmonic_test(e[:, c], phi)
+            if best is None or p < best[0]:
+                best = (p, r2, sig, name, c)
+    rotor_f = None
+    if best is not None and best[2]:
+        p, r2, sig, name, c = best
+        rotor_f = float(np.mean(ctx.signals[name]))
+        h.p_value = float(min(1.0, p * len(cands) * e.shape[1]))
+        h.parameters = {"source": name, "harmonics": sig, "frequency_hz": rotor_f}
+        h.evidence = (
+            f"harmonics {sig} of {name} (mean {rotor_f:.4g} Hz) explain {100 * r2:.1f} % of the "
+            f"ch{c} residual variance (F-test p={p:.1e})"
+        )
+    lines, mode_peaks = [], []
+    for pk in rs.spectral_peaks(ctx.assessment.spectrum):
+        if rotor_f is not None and any(
+            abs(pk.frequency_hz - k * rotor_f) < 0.03 * k * rotor_f for k in range(1, 9)
+        ):
+            continue
+        frac, f1, _ = rs.line_fraction(e[:, pk.channel], fs, pk.frequency_hz)
+        near = any(abs(pk.frequency_hz - f) <= NEAR_MODE * f for f in ctx.model_freqs)
+        if frac > 0.7 and not near:
+            lines.append((pk, frac, f1))
+        else:
+            mode_peaks.append(pk)
+    if not h.parameters and lines:
+        pk, frac, f1 = lines[0]
+        h.p_value = float(stats.chi2.sf(2 * pk.ratio, 2))
+        h.parameters = {"source": None, "frequency_hz": f1, "harmonics": [1]}
+        h.evidence = (
+            f"a line at {f1:.4g} Hz on ch{pk.channel} ({pk.ratio:.0f}x the noise floor); one "
+            f"sinusoid explains {100 * frac:.0f} % of the band power"
+        )
+    if not h.parameters:
+        h.evidence = "no residual line and no harmonics of a candidate rotating speed"
+    return h, lines, mode_peaks
+
+
+# ------------------------------------------------------------------ missing_mode
+def missing_mode(ctx: Context, mode_peaks: list) -> Hypothesis:
+    """The strongest residual peak away from the model's modes."""
+    h = Hypothesis("missing_mode")
+    freqs = ctx.model_freqs
+    far = [pk for pk in mode_peaks if all(abs(pk.frequency_hz - f) > NEAR_MODE * f for f in freqs)]
+    if not far:
+        near = [pk.frequency_hz for pk in mode_peaks]
+        h.evidence = "no narrow-band residual peak away from the model modes" + (
+            f" (peaks near model modes at {', '.join(f'{f:.4g}' for f in near)} Hz)" if near else ""
+        )
+        return h
+    pk = far[0]
+    h.p_value = float(stats.chi2.sf(2 * pk.ratio, 2))  # exponential tail of one Welch bin
+    h.parameters = {
+        "frequency_hz": pk.frequency_hz,
+        "damping": pk.damping,
+        "channel": pk.channel,
+        "evidence_frequency_hz": pk.frequency_hz,
+        "resolution_hz": ctx.assessment.spectrum.resolution_hz,
+    }
+    coh = ""
+    if ctx.data.n_inputs:
+        f, cxy, bnd = rs.coherence(ctx.e[:, pk.channel], ctx.data.u[ctx.split.val, 0], ctx.data.fs)
+        cv = float(np.interp(pk.frequency_hz, f, cxy))
+        coh = f", residual-input coherence there {cv:.2f} (99 % bound {bnd:.2f})"
+    h.evidence = (
+        f"residual peak at {pk.frequency_hz:.4g} Hz on ch{pk.channel}, {pk.ratio:.0f}x the "
+        f"noise floor (99.9 % bound {ctx.assessment.spectrum.bound_factor:.1f}x), no model mode "
+        f"within {100 * NEAR_MODE:.0f} %{coh}"
+    )
+    return h
+
+
+# ------------------------------------------------------------------ parameter_varying
+def _power_dependence(e: np.ndarray, s: np.ndarray, fs: float) -> tuple[float, float]:
+    """F-test of log window power of e on [1, s, s^2]: (p-value, R^2)."""
+    w = max(int(fs / 2), 8)
+    k = e.size // w
+    if k < 8:
+        return 1.0, 0.0
+    lp = np.log(np.mean(e[: k * w].reshape(k, w) ** 2, axis=1) + 1e-300)
+    sm = s[: k * w].reshape(k, w).mean(axis=1)
+    if np.ptp(sm) <= 1e-9 * max(1.0, abs(sm.mean())):
+        return 1.0, 0.0
+    z = (sm - sm.mean()) / sm.std()
+    x = np.column_stack([np.ones(k), z, z**2])
+    th = rs.lstsq(x, lp)
+    ss_res = float(np.sum((lp - x @ th) ** 2))
+    ss_tot = float(np.sum((lp - lp.mean()) ** 2))
+    r2 = 1 - ss_res / ss_tot if ss_tot > 0 else 0.0
+    f = (r2 / 2) / max((1 - r2) / (k - 3), 1e-300)
+    return float(stats.f.sf(f, 2, k - 3)), r2
+
+
+def modulation_test(e: np.ndarray, sens: np.ndarray, theta: np.ndarray) -> tuple[float, float]:
+    """Score test of "the poles move with theta": F-test of theta~ S on the error e beyond S
+    (S (N, k) the free run's sensitivities to each mode's damping and frequency, theta~ the
+    standardised signal), after prewhitening e and the regressors by e's AR filter (the free
+    run's error is coloured). A fixed pole error is absorbed by S; only a pole error that
+    follows theta counts. Returns (p-value, share of the error variance explained)."""
+    th = (theta - theta.mean()) / max(float(theta.std()), 1e-300)
+    x_f = np.hstack([sens, th[:, None] * sens])
+    cols = rs.whitened(e, *x_f.T)
+    ew, xw = cols[0], np.column_stack(cols[1:])
+    k = sens.shape[1]
+    xr, xf = xw[:, :k], xw
+    ss_r = float(np.sum((ew - xr @ rs.lstsq(xr, ew)) ** 2))
+    ss_f = float(np.sum((ew - xf @ rs.lstsq(xf, ew)) ** 2))
+    dof = ew.size - xf.shape[1]
+    f = ((ss_r - ss_f) / k) / max(ss_f / dof, 1e-300)
+    return float(stats.f.sf(f, k, dof)), float((ss_r - ss_f) / max(float(ew @ ew), 1e-300))
+
+
+def mode_shift_test(
+    e: np.ndarray, theta: np.ndarray, fs: float, f0: float, neighbours: tuple[float, float]
+) -> tuple[float, float]:
+    """Does a mode near f0 move with theta? The error is band-passed below and above f0 (an
+    octave each way, not past the geometric mid-point to a neighbouring mode); the log
+    ratio of the two band powers per window (about 4 periods or 0.5 s) is regressed on the
+    window mean of theta; t-test of the slope. A mode whose frequency follows theta leaves
+    error above f0 at one end of theta's range and below it at the other. Returns (p, R^2)."""
+    lo = max(f0 / SHIFT_BAND, np.sqrt(f0 * neighbours[0]), 1e-3 * fs)
+    hi = min(f0 * SHIFT_BAND, np.sqrt(f0 * neighbours[1]), 0.49 * fs)
+    if not lo < f0 < hi:
+        return 1.0, 0.0
+    sos_lo = signal.butter(2, [lo, f0], "bandpass", fs=fs, output="sos")
+    sos_hi = signal.butter(2, [f0, hi], "bandpass", fs=fs, output="sos")
+    a_lo = signal.sosfiltfilt(sos_lo, e) ** 2
+    a_hi = signal.sosfiltfilt(sos_hi, e) ** 2
+    w = int(max(4.0 * fs / f0, fs / 2, 8))
+    k = e.size // w
+    if k < 6:
+        return 1.0, 0.0
+    r = np.log(a_hi[: k * w].reshape(k, w).mean(axis=1) + 1e-300) - np.log(
+        a_lo[: k * w].reshape(k, w).mean(axis=1) + 1e-300
+    )
+    tm = theta[: k * w].reshape(k, w).mean(axis=1)
+    if np.ptp(tm) <= 1e-9 * max(1.0, abs(tm.mean())):
+        return 1.0, 0.0
+    lr = stats.linregress(tm, r)
+    p = float(lr.pvalue) if np.isfinite(lr.pvalue) else 1.0
+    return p, float(lr.rvalue**2)
+
+
+def parameter_varying(ctx: Context) -> Hypothesis:
+    """Modes moving with a candidate scheduling signal: with a free run, the score test of
+    :func:`modulation_test`; without one (output-only), the error power depending on the
+    signal (F-test of log window power on a quadratic in it)."""
+    h = Hypothesis("parameter_varying")
+    best = None
+    a = ctx.assessment
+    cur = ctx.current
+    val = ctx.split.val
+    sens = None
+    plain = cur.model is not None and not cur.locals and not cur.spec.feedback
+    if a.primary == "free_run" and plain and cur.spec.cubic_channel is None:
+        m = cur.model
+        u = shift(ctx.data.u, cur.spec.delay)
+        sens = pole_sensitivity(m.A, m.B, m.C, cur.x0, u)[val]
+        if sens.shape[2] == 0:
+            sens = None
+    e = a.primary_error
+    fs = ctx.data.fs
+    freqs = sorted(md.frequency_hz for md in cur.modes())
+    modes = [
+        (f, (freqs[k - 1] if k else 0.0, freqs[k + 1] if k + 1 < len(freqs) else np.inf))
+        for k, f in enumerate(freqs)
+    ]
+    n_tests = 0
+    for name, s in ctx.signals.items():
+        sv = s[val]
+        for c in range(e.shape[1]):
+            tests = [("power", *_power_dependence(e[:, c], sv, fs))]
+            if sens is not None:
+                tests.append(("score", *modulation_test(e[:, c], sens[:, c, :], sv)))
+            for f0, z in modes:
+                tests.append((f"shift {f0:.4g} Hz", *mode_shift_test(e[:, c], sv, fs, f0, z)))
+            n_tests += len(tests)
+            for kind, p, r2 in tests:
+                if best is None or p < best[0]:
+                    best = (p, r2, name, c, kind)
+    if best is None:
+        h.evidence = "no candidate scheduling signal in the data"
+        return h
+    p, r2, name, c, kind = best
+    h.p_value = float(min(1.0, p * n_tests))
+    h.parameters = {"signal": name}
+    if kind == "score":
+        how = (
+            f"the modes' frequency and damping sensitivities modulated by {name} explain "
+            f"{100 * r2:.0f} % of the ch{c} free-run error (score F-test p={p:.1e})"
+        )
+    elif kind == "power":
+        how = (
+            f"ch{c} error power depends on {name} ({100 * r2:.0f} % of its log-power variance "
+            f"explained by a quadratic in {name}, F-test p={p:.1e})"
+        )
+    else:
+        how = (
+            f"the ch{c} error moves across the mode at {kind[6:]} with {name} (band-power "
+            f"ratio above/below the mode against {name}: R^2 {r2:.2f}, slope t-test p={p:.1e})"
+        )
+    h.evidence = how + f" ({n_tests} tests, Bonferroni)"
+    return h
+
+
+# ------------------------------------------------------------------ input_delay
+def input_delay(ctx: Context) -> Hypothesis:
+    """Residual correlated with past (prewhitened) inputs."""
+    h = Hypothesis("input_delay")
+    xc = ctx.assessment.xcorr
+    if not xc:
+        h.evidence = "output-only data: no input to correlate with"
+        return h
+    key = min(xc, key=lambda k: xc[k].p_past)
+    x = xc[key]
+    lag, val = x.peak("past")
+    h.p_value = float(min(1.0, x.p_past * len(xc)))
+    h.parameters = {"peak_lag": lag}
+    h.evidence = (
+        f"residual ch{key[0]} vs past input {key[1]}: cross-correlation portmanteau "
+        f"p={x.p_past:.1e}, peak {val:+.2f} at lag {lag} (99 % bound {x.bound:.2f})"
+    )
+    return h
+
+
+# ------------------------------------------------------------------ feedback
+def conditional_granger(
+    u: np.ndarray, e: np.ndarray, z: np.ndarray | None, u_lags: int, e_lags: int
+) -> tuple[float, float, float]:
+    """Do past innovations e predict u_t beyond the past of u (and of z)? F-test.
+
+    u_t (one input) is regressed on [u_{t-1..t-L} (all inputs), z_{t-1..t-p}] and then also on
+    e_{t-1..t-p}. In open loop e (output noise) is independent of u whatever u's colour; a
+    controller u = r - F y makes u depend on past e. Returns (F, p-value, share): share is the
+    part of u's variance left by its own past that the innovations explain (partial R^2; a
+    model error that is a function of u leaks a little into e, a controller a lot).
+    """
+    n = u.shape[0]
+    k0 = max(u_lags, e_lags)
+    blocks = [lagged(u, u_lags)]
+    if z is not None:
+        blocks.append(lagged(z, e_lags))
+    x_r = np.hstack([np.ones((n, 1)), *blocks])[k0:]
+    x_f = np.hstack([x_r, lagged(e, e_lags)[k0:]])
+    scale = np.maximum(np.linalg.norm(x_f, axis=0), 1e-300)
+    x_r, x_f = x_r / scale[: x_r.shape[1]], x_f / scale
+    out = []
+    for j in range(u.shape[1]):
+        target = u[k0:, j]
+        ss_r = float(np.sum((target - x_r @ rs.lstsq(x_r, target)) ** 2))
+        ss_f = float(np.sum((target - x_f @ rs.lstsq(x_f, target)) ** 2))
+        q = x_f.shape[1] - x_r.shape[1]
+        dof = target.size - x_f.shape[1]
+        f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
+        share = (ss_r - ss_f) / max(ss_r, 1e-300)
+        out.append((float(f), float(stats.f.sf(f, q, dof)), float(share)))
+    f, p, share = min(out, key=lambda fp: fp[1])
+    return f, float(min(1.0, p * u.shape[1])), share
+
+
+def closed_loop_test(
+    data: ValidationData, rows: np.ndarray, order: int = 20
+) -> tuple[float, float]:
+    """(p-value, share) of "the input depends on past outputs", before any model: innovations
+    e of an ARX(order) fit of y on its past and the past and present inputs (least squares on
+    ``rows``), then :func:`conditional_granger` of u on its own past and e's past."""
+    y, u = data.y, data.u
+    if not data.n_inputs:
+        return 1.0, 0.0
+    reg = np.hstack([lagged(y, order), u, lagged(u, order)])
+    rows = rows[rows >= order]
+    th = rs.lstsq(reg[rows], y[rows])
+    e = y[rows] - reg[rows] @ th
+    a, b = runs_span(rows)
+    _, p, share = conditional_granger(
+        u[a:b], _fill(e, rows, a, b), None, 2 * order, FEEDBACK_ERROR_LAGS
+    )
+    return p, share
+
+
+def runs_span(rows: np.ndarray) -> tuple[int, int]:
+    """The longest contiguous run of ``rows`` as [a, b)."""
+    cut = np.flatnonzero(np.diff(rows) > 1)
+    starts = np.r_[rows[0], rows[cut + 1]]
+    stops = np.r_[rows[cut] + 1, rows[-1] + 1]
+    k = int(np.argmax(stops - starts))
+    return int(starts[k]), int(stops[k])
+
+
+def _fill(e: np.ndarray, rows: np.ndarray, a: int, b: int) -> np.ndarray:
+    out = np.zeros((b - a, e.shape[1]))
+    keep = (rows >= a) & (rows < b)
+    out[rows[keep] - a] = e[keep]
+    return out
+
+
+def feedback(ctx: Context) -> Hypothesis:
+    """Innovations of the model predicting the input beyond the input's own past."""
+    h = Hypothesis("feedback")
+    if not ctx.data.n_inputs:
+        h.evidence = "output-only data: no input"
+        return h
+    a = ctx.assessment
+    u = ctx.data.u[ctx.split.val]
+    z = None
+    if a.simulation is not None:
+        z = a.simulation[ctx.split.val]
+    u_lags = max(10, 2 * ctx.current.spec.block_rows)
+    f, p, share = conditional_granger(u, ctx.e, z, u_lags, FEEDBACK_ERROR_LAGS)
+    h.p_value = p
+    h.evidence = (
+        f"past innovations predict the input beyond its own past ({u_lags} lags) and the "
+        f"model's free run: {100 * share:.1f} % of its unpredictable part, F={f:.2f}, p={p:.1e}"
+    )
+    return h
+
+
+# ------------------------------------------------------------------ nonlinear_stiffness
+def nonlinear_stiffness(ctx: Context) -> Hypothesis:
+    """Residual correlated with the cubic Hermite term of a structural coordinate: an output
+    (displacement sensor) or its first / second time integral (velocity / acceleration
+    sensor), integrated below half the model's lowest mode."""
+    h = Hypothesis("nonlinear_stiffness")
+    y, fs = ctx.data.y, ctx.data.fs
+    freqs = ctx.model_freqs or [fs / ctx.data.n]
+    errors = ctx.errors
+    best = None
+    for j in range(y.shape[1]):
+        for p in range(3):
+            z = integrate(y[:, j], fs, p, 0.5 * min(freqs))[ctx.split.val]
+            for colored, e in errors:
+                for c in range(e.shape[1]):
+                    r, bnd, pv = rs.higher_order_correlation(e[:, c], z, colored=colored)
+                    if best is None or pv < best[0]:
+                        best = (pv, j, p, c, float(np.max(np.abs(r))), bnd, colored)
+    pv, j, p, c, rmax, bnd, colored = best
+    h.p_value = float(min(1.0, pv * 3 * len(errors) * y.shape[1] ** 2))
+    h.parameters = {"channel": j, "integrals": p, "input": 0}
+    what = ("output", "integral of output", "double integral of output")[p]
+    kind = "free-run error (prewhitened)" if colored else "one-step residual"
+    h.evidence = (
+        f"{kind} ch{c} correlated with the cube of the {what} {j}: max |r| {rmax:.2f} "
+        f"(99 % bound {bnd:.2f}), portmanteau p={pv:.1e}"
+    )
+    return h

@@ -1,0 +1,571 @@
+"""Fitted model structures: the DSRA model (Appendix A) with or without one added effect, its
+one-step prediction and its free run (simulation).
+
+Every structure is fitted on the estimation part in two steps:
+
+1. A and C (and the Kalman gain K of the innovation form) from the batch DSRA realization of
+   the structure's inputs and outputs (Appendix A, (A2)-(A4));
+2. with A and C fixed, B, D, the initial state and the coefficients of additive regressors by
+   least squares on the *simulation* error (:mod:`.simulation`) when the data have an input:
+   the free run is what the model is compared with the measurement by (``compare``).
+
+A model whose A is unstable (no bounded free run) or whose predictor A - K C is unstable (no
+bounded one-step prediction) is flagged: :mod:`.baseline` refits such candidates, never
+reports them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import linalg
+
+from ..core.batch import model_from_projection
+from ..core.hankel import Layout, window_rows
+from ..core.inputs import InputError, validate_batch
+from ..core.lti import simulate_discrete
+from ..core.model import IdentifiedModel
+from ..core.realization import kalman_gain, project
+from .augment import LpvModel, ModelSpec, operating_points, regressors
+from .data import ValidationData, ValidationError
+from .residuals import lstsq
+from .simulation import (
+    LinearDynamics,
+    cubic_coordinate,
+    fit_output_error,
+    integrate,
+    next_sample,
+    refine_poles,
+    simulate_cubic,
+    simulate_linear,
+    spectral_radius,
+    spring_inputs,
+)
+from .split import Split
+
+#: Residual evaluations of each output-error refinement of the poles.
+REFINE_EVALUATIONS = 30
+#: Refine the poles of linear structures by output error too (the subspace poles minimise a
+#: one-step criterion; a mode between the lines of a multisine can sit off by its bandwidth).
+REFINE_LINEAR = True
+
+
+def _shift_int(u: np.ndarray, d: int) -> np.ndarray:
+    if d <= 0:
+        return u
+    out = np.zeros_like(u)
+    if d < u.shape[0]:
+        out[d:] = u[:-d]
+    return out
+
+
+def shift(u: np.ndarray, d: float) -> np.ndarray:
+    """u delayed by d samples (zeros first); a fractional d interpolates linearly between
+    samples (u_t-d = (1 - a) u_t-k + a u_t-k-1, k = floor d, a = d - k)."""
+    if d <= 0:
+        return u
+    k = int(np.floor(d))
+    a = float(d - k)
+    if a < 1e-9:
+        return _shift_int(u, k)
+    return (1.0 - a) * _shift_int(u, k) + a * _shift_int(u, k + 1)
+
+
+def lagged(x: np.ndarray, lags: int) -> np.ndarray:
+    """[x_{t-1}, ..., x_{t-lags}] (N, lags * c), zeros before the start."""
+    n, c = x.shape
+    out = np.zeros((n, lags * c))
+    for k in range(1, lags + 1):
+        out[k:, (k - 1) * c : k * c] = x[:-k]
+    return out
+
+
+@dataclass
+class DataProjection:
+    """Steps 1-2 of Appendix A on channel-scaled data: realizations of any order from it."""
+
+    proj: object
+    su: np.ndarray
+    sy: np.ndarray
+    fs: float
+    block_rows: int
+
+    @property
+    def max_order(self) -> int:
+        return self.proj.layout.l * (self.proj.layout.i - 1)
+
+    def model(self, order: int) -> IdentifiedModel:
+        """The order-``order`` innovation-form model (A4) with its Riccati Kalman gain."""
+        if not 1 <= order <= self.max_order:
+            raise ValidationError(
+                f"order {order} is not realizable with block_rows={self.block_rows} "
+                f"(at most {self.max_order})"
+            )
+        return model_from_projection(
+            self.proj, order, self.fs, self.su, self.sy, None, (0.0, 1.0), None
+        )
+
+
+def data_projection(
+    y: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    block_rows: int,
+    segments: list[tuple[int, int]] | None = None,
+) -> DataProjection:
+    """QR of the stacked windows (A1) of unit-variance channels and the projection (A2); with
+    ``segments`` only windows inside each [a, b) (an interleaved estimation part)."""
+    segs = segments or [(0, y.shape[0])]
+    segs = [(a, b) for a, b in segs if b - a >= 2 * block_rows + 1]
+    idx = np.concatenate([np.arange(a, b) for a, b in segs]) if segs else np.zeros(0, int)
+    try:
+        if block_rows < 2:
+            raise InputError("block_rows must be >= 2")
+        if not segs:
+            raise InputError(f"no estimation segment holds 2 x {block_rows} + 1 samples")
+        validate_batch(y[idx], u[idx] if u.shape[1] else None, block_rows)
+    except InputError as err:
+        raise ValidationError(f"identification failed: {err}") from None
+    su, sy = np.std(u[idx], axis=0), np.std(y[idx], axis=0)
+    z = np.vstack([window_rows(u[a:b] / su, y[a:b] / sy, block_rows) for a, b in segs])
+    r_fac = linalg.qr(z, mode="r", check_finite=False)[0]
+    lay = Layout(block_rows, u.shape[1], y.shape[1])
+    proj = project(np.ascontiguousarray(r_fac[: lay.dim].T), lay, z.shape[0], z.shape[0])
+    return DataProjection(proj, su, sy, fs, block_rows)
+
+
+def identify_dsra(
+    y: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    order: int,
+    block_rows: int,
+    segments: list[tuple[int, int]] | None = None,
+) -> IdentifiedModel:
+    """Batch DSRA of a fixed order on ``segments`` of the record (ValidationError with a
+    one-line reason on failure)."""
+    try:
+        return data_projection(y, u, fs, block_rows, segments).model(order)
+    except (np.linalg.LinAlgError, ValueError) as err:
+        if isinstance(err, ValidationError):
+            raise
+        raise ValidationError(f"identification failed: {' '.join(str(err).split())}") from None
+
+
+@dataclass
+class FittedModel:
+    """A fitted structure: base DSRA model, LPV local models or the joint closed-loop model."""
+
+    spec: ModelSpec
+    order: int
+    model: IdentifiedModel | None = None
+    x0: np.ndarray | None = None  # free-run initial state at sample 0
+    locals: list[tuple[float, IdentifiedModel]] = field(default_factory=list)
+    theta: np.ndarray | None = None  # (p, l) additive regressor coefficients
+    controller: np.ndarray | None = None  # least-squares controller (feedback)
+    n_outputs: int = 1
+    lpv: LpvModel | None = None
+    cubic_prior: FittedModel | None = None  # model whose one-step prediction feeds the cubic
+    cubic_c: np.ndarray | None = None  # row c_z of the spring's coordinate z = c_z x
+    cubic_scale: float = 1.0  # RMS of the spring coordinate on the data (q = (z / scale)^3)
+    cubic_form: str = ""  # "input" (the force acts like input cubic_input) or "free"
+    simulation_fit: bool = False  # B, D (and theta) from the simulation error
+    _dyn: LinearDynamics | None = field(default=None, repr=False)
+
+    # ---------------------------------------------------------------- stability
+    @property
+    def free_run_radius(self) -> float:
+        """Spectral radius of the free-run dynamics (the plant's A; < 1: bounded free run)."""
+        if self.locals:
+            return float(max(spectral_radius(m.A) for _, m in self.locals))
+        if self.spec.feedback and self.model is not None:
+            return spectral_radius(self.model.A)  # the closed loop (joint model)
+        return spectral_radius(self.model.A) if self.model is not None else np.inf
+
+    @property
+    def predictor_radius(self) -> float:
+        """Spectral radius of the one-step predictor A - K C (< 1: bounded prediction)."""
+        ms = [m for _, m in self.locals] if self.locals else [self.model]
+        return float(max(spectral_radius(m.A - m.K @ m.C) for m in ms))
+
+    def stable(self, free_run: bool) -> bool:
+        ok = self.predictor_radius < 1.0
+        return ok and (self.free_run_radius < 1.0 if free_run else True)
+
+    # ---------------------------------------------------------------- inputs
+    def one_step_inputs(self, data: ValidationData) -> np.ndarray:
+        """Model inputs for the one-step predictor: the (delayed) measured input."""
+        return shift(data.u, self.spec.delay)
+
+    def spring_force(self, data: ValidationData) -> np.ndarray:
+        """q_t = z_t^3 for the one-step predictor: the spring coordinate from the prior (linear)
+        model's predicted states (known before y_t arrives, free of the measurement noise)."""
+        sp = self.spec
+        z = coordinate_prediction(self.cubic_prior, data, sp.cubic_channel, sp.cubic_integrals)
+        return (z[:-1] / self.cubic_scale) ** 3
+
+    def structural_prediction(self, data: ValidationData) -> np.ndarray:
+        return self.predict(data) - self.additive(data)
+
+    def reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Reconstructed reference r = u - controller(past y, past u) (feedback)."""
+        return u - lagged(np.hstack([y, u]), self.spec.feedback_lags) @ self.controller
+
+    # ---------------------------------------------------------------- prediction
+    def additive(self, data: ValidationData) -> np.ndarray:
+        phi = regressors(self.spec, data)
+        if phi is None or self.theta is None:
+            return np.zeros((data.n, self.n_outputs))
+        return phi @ self.theta
+
+    def _core_predict(self, data: ValidationData, yc: np.ndarray, ue: np.ndarray) -> np.ndarray:
+        if self.spec.feedback:
+            r = self.reference(yc, ue)
+            return _predictor(self.model, np.hstack([yc, ue]), r)[:, : self.n_outputs]
+        if self.locals:
+            return self.lpv.run(data.signals[self.spec.lpv_signal], ue, yc)
+        if self.spec.cubic_channel is not None:
+            v, w = spring_inputs(ue, self.spring_force(data))
+            m = self.model
+            b = np.hstack([m.B, -m.K @ m.D, m.K])
+            d = np.hstack([np.zeros_like(m.D), m.D, np.zeros((m.n_outputs, m.n_outputs))])
+            y, _ = simulate_discrete(m.A - m.K @ m.C, b, m.C, d, np.hstack([v, w, yc]))
+            return y
+        return _predictor(self.model, yc, ue)
+
+    def predict(self, data: ValidationData) -> np.ndarray:
+        """One-step-ahead prediction over the whole record (N, l)."""
+        add = self.additive(data)
+        yc = data.y - add
+        return add + self._core_predict(data, yc, self.one_step_inputs(data))
+
+    def simulate(self, data: ValidationData) -> np.ndarray | None:
+        """Free run from the measured input over the whole record (None for output-only data).
+
+        The estimation part gives the state at the start of the validation part: no measured
+        output is used after the first sample (x0 is estimated on the estimation part). A
+        closed-loop structure runs the joint model [y; u] from the reconstructed reference
+        r = u - controller(past y, past u) (the loop's external excitation; the measured output
+        enters only through the fitted controller).
+        """
+        if data.n_inputs == 0:
+            return None
+        add = self.additive(data)
+        u = shift(data.u, self.spec.delay)
+        if not self.free_run_radius < 1.0:
+            return np.full_like(data.y, np.nan)  # no bounded free run
+        with np.errstate(all="ignore"):
+            if self.spec.feedback:  # the closed loop from the reconstructed reference
+                m = self.model
+                r = self.reference(data.y - add, u)
+                y, _ = simulate_discrete(m.A, m.B, m.C, m.D, r, self.x0)
+                y = y[:, : self.n_outputs]
+            elif self.locals:
+                y = self.lpv.run(data.signals[self.spec.lpv_signal], u, None)
+            else:
+                m = self.model
+                if self.spec.cubic_channel is None:
+                    y = simulate_linear(self.dynamics(data.n), m.B, m.D, u, self.x0)
+                else:
+                    dyn = LinearDynamics.build(m.A, np.vstack([m.C, self.cubic_c]), data.n)
+                    y, _ = simulate_cubic(dyn, m.B, m.D, u, self.x0)
+        return add + y
+
+    def dynamics(self, n_samples: int) -> LinearDynamics:
+        """(A, C) with their Markov kernel for records of up to ``n_samples`` (cached)."""
+        if self._dyn is None or self._dyn.kernel.shape[0] < min(
+            n_samples, _kernel_need(self.model.A)
+        ):
+            self._dyn = LinearDynamics.build(self.model.A, self.model.C, n_samples)
+        return self._dyn
+
+    # ---------------------------------------------------------------- reporting
+    def modes(self) -> list:
+        if self.locals:
+            return self.locals[len(self.locals) // 2][1].modes
+        return self.model.modes if self.model is not None else []
+
+    def cubic_gain(self) -> float:
+        """Cubic stiffness k3 relative to input ``cubic_input``: b_q ~ -k3 B_j (z in the
+        coordinate's units; > 0: hardening)."""
+        if self.spec.cubic_channel is None or self.model is None:
+            return float("nan")
+        bj, bq = self.model.B[:, self.spec.cubic_input], self.model.B[:, -1]
+        return float(-(bq @ bj) / max(bj @ bj, 1e-300)) / self.cubic_scale**3
+
+
+def predicted_states(fm: FittedModel, data: ValidationData) -> np.ndarray:
+    """One-step predicted states x_t|t-1 of a linear structure, t = 0..N, (N + 1, n)."""
+    m = fm.model
+    yc = data.y - fm.additive(data)
+    ak = m.A - m.K @ m.C
+    bk = np.hstack([m.B - m.K @ m.D, m.K])
+    n = m.order
+    xs, x_end = simulate_discrete(
+        ak, bk, np.eye(n), np.zeros((n, bk.shape[1])), np.hstack([fm.one_step_inputs(data), yc])
+    )
+    return np.vstack([xs, x_end])
+
+
+def coordinate_prediction(
+    fm: FittedModel, data: ValidationData, channel: int, integrals: int
+) -> np.ndarray:
+    """A spring coordinate z = C_c A_c^-p x from the predicted states of ``fm``, (N + 1,)."""
+    row = cubic_coordinate(fm.model.A, fm.model.C[channel], data.fs, integrals)
+    return predicted_states(fm, data) @ row
+
+
+def measured_spring_force(fm: FittedModel, data: ValidationData) -> np.ndarray:
+    """q = z^3 with z the spring coordinate from the measurement: the output channel, or its
+    integral(s) below the prior model's lowest mode / 2 (for fitting: the measured motion is
+    what the spring feels; the one-step predictor uses :meth:`FittedModel.spring_force`)."""
+    sp = fm.spec
+    prior = fm.cubic_prior
+    yc = data.y - prior.additive(data)
+    freqs = [md.frequency_hz for md in prior.modes()] or [data.fs / data.n]
+    z = integrate(yc[:, sp.cubic_channel], data.fs, sp.cubic_integrals, 0.5 * min(freqs))
+    fm.cubic_scale = max(float(np.std(z)), 1e-300)  # q in units of the coordinate's RMS
+    return (z / fm.cubic_scale) ** 3
+
+
+def _kernel_need(a: np.ndarray) -> int:
+    rho = spectral_radius(a)
+    if rho >= 1.0:
+        return 1 << 62
+    return int(np.ceil(np.log(1e-13) / np.log(max(rho, 1e-300)))) + 1
+
+
+def _predictor(model: IdentifiedModel, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """One-step prediction of an innovation-form model (Kalman predictor)."""
+    return model.predict(y, u if model.n_inputs else None)
+
+
+# -------------------------------------------------------------------- fitting
+def _plain(fm: FittedModel | None) -> bool:
+    """A single linear DSRA model (no LPV, closed-loop or cubic structure)."""
+    sp = fm.spec if fm is not None else None
+    return (
+        fm is not None
+        and fm.model is not None
+        and not fm.locals
+        and not sp.feedback
+        and sp.cubic_channel is None
+    )
+
+
+def fit(
+    spec: ModelSpec, data: ValidationData, split: Split, like: FittedModel | None = None
+) -> FittedModel:
+    """Identify the structure ``spec`` on the estimation samples of ``data``.
+
+    ``like``: a fitted plain model; a cubic structure of the same order and delay uses it as
+    its linear prior. (Every other structure identifies its dynamics again: a baseline fitted
+    without a bias or a line may have bent a pole to imitate it.)
+    """
+    l = data.n_outputs
+    if spec.order is None:
+        raise ValidationError("internal: fit() needs an order (see baseline.select_baseline)")
+    order = spec.order + spec.extra_order
+    phi = regressors(spec, data)
+    fm = FittedModel(spec, order, n_outputs=l)
+    if spec.cubic_channel is not None:
+        if not 0 <= spec.cubic_channel < l:
+            raise ValidationError(f"nonlinear_stiffness: no output channel {spec.cubic_channel}")
+        if not 0 <= spec.cubic_input < data.n_inputs:
+            raise ValidationError("nonlinear_stiffness needs an input (the spring acts with it)")
+        linear = replace(spec, cubic_channel=None)
+        same = _plain(like) and like.spec.delay == spec.delay and like.order == order
+        fm.cubic_prior = like if same else fit(linear, data, split)
+    if phi is not None:  # first pass: plain least squares on the raw outputs
+        fm.theta = lstsq(phi[split.est], data.y[split.est])
+    yc = data.y - fm.additive(data)
+    ue = fm.one_step_inputs(data)
+    _fit_core(fm, data, yc, ue, split, order)
+    if data.n_inputs and spec.focus == "free_run" and not spec.feedback and not fm.locals:
+        _fit_simulation(fm, data, phi, split)
+    elif phi is not None:
+        _refine_theta(fm, data, phi, yc, ue, split)
+    return fm
+
+
+def _fit_core(
+    fm: FittedModel,
+    data: ValidationData,
+    yc: np.ndarray,
+    ue: np.ndarray,
+    split: Split,
+    order: int,
+) -> None:
+    spec = fm.spec
+    br = spec.block_rows
+    segs = split.est_segments
+    if spec.feedback:
+        if data.n_inputs == 0:
+            raise ValidationError("feedback needs an input topic (closed-loop data)")
+        lags = spec.feedback_lags
+        rows = split.est[split.est >= lags]
+        fm.controller = lstsq(lagged(np.hstack([yc, ue]), lags)[rows], ue[rows])
+        r = fm.reference(yc, ue)
+        joint = np.hstack([yc, ue])
+        m = identify_dsra(joint, r, data.fs, order + 2 * data.n_inputs, br, segs)
+        # the closed loop's free run from the reference: poles and B, D by output error
+        a, c, t, _ = refine_poles(
+            m.A, m.C, joint, split.est, lambda _: (r, r), np.zeros(0), None, REFINE_EVALUATIONS
+        )
+        m = _to_basis(m, a, c, t)
+        oe = fit_output_error(LinearDynamics.build(a, c, data.n), joint, r, split.est)
+        fm.model, fm.x0 = replace(m, B=oe.B, D=oe.D), oe.x0
+        fm.order = fm.model.order
+        return
+    if spec.lpv_signal is not None:
+        _fit_lpv(fm, data, yc, ue, split, order)
+        return
+    if spec.cubic_channel is not None:  # initial A, C and stiffness: DSRA with q as an input
+        q = measured_spring_force(fm, data)[:, None]
+        fm.model = identify_dsra(yc, np.hstack([ue, q]), data.fs, order, br, segs)
+    else:
+        fm.model = identify_dsra(yc, ue, data.fs, order, br, segs)
+    fm.order = fm.model.order
+
+
+def _fit_lpv(
+    fm: FittedModel, data: ValidationData, yc: np.ndarray, ue: np.ndarray, split: Split, order: int
+) -> None:
+    """Local models at operating points of the scheduling signal (Sec. IV), each with B, D
+    from its own segment's simulation error, interpolated in modal coordinates (Eq. (2))."""
+    spec = fm.spec
+    if spec.lpv_signal not in data.signals:
+        raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
+    theta = data.signals[spec.lpv_signal]
+    min_len = 2 * spec.block_rows * (1 + data.n_inputs + data.n_outputs) + 50
+    pts = operating_points(theta, spec.lpv_points, min_len, split.est_mask)
+    if len(pts) < 2:
+        raise ValidationError(
+            f"parameter_varying: fewer than 2 operating points of {spec.lpv_signal} with "
+            f">= {min_len} samples in the estimation part"
+        )
+    local = []
+    for p, a, b in pts:
+        m = identify_dsra(yc[a:b], ue[a:b], data.fs, order, spec.block_rows)
+        if data.n_inputs and spectral_radius(m.A) < 1.0:
+            dyn = LinearDynamics.build(m.A, m.C, b - a)
+            oe = fit_output_error(dyn, yc[a:b], ue[a:b], slice(0, b - a))
+            m = replace(m, B=oe.B, D=oe.D)
+        local.append((p, m))
+    fm.locals = local
+    fm.lpv = LpvModel.from_locals(local)
+    fm.order = local[0][1].order
+
+
+def _fit_simulation(
+    fm: FittedModel,
+    data: ValidationData,
+    phi: np.ndarray | None,
+    split: Split,
+    refine: bool = True,
+) -> None:
+    """B, D, x0 (and theta) by least squares on the free-run error, A and C fixed
+    (:mod:`.simulation`). With a cubic spring, its stiffness and the poles are refined by output
+    error (variable projection), the force from the prior model's predicted states."""
+    m = fm.model
+    rows = split.est
+    u = shift(data.u, fm.spec.delay)
+    sp = fm.spec
+    if sp.cubic_channel is None:
+        if spectral_radius(m.A) >= 1.0:
+            return  # no bounded free run: keep the (A4) B, D; baseline selection refits it
+        if REFINE_LINEAR and refine:
+            a, c, t, _ = refine_poles(
+                m.A, m.C, data.y, rows, lambda _: (u, u), np.zeros(0), phi, REFINE_EVALUATIONS
+            )
+            m = _to_basis(m, a, c, t)
+            fm._dyn = None
+        fm.model = m
+        oe = fit_output_error(fm.dynamics(data.n), data.y, u, rows, additive=phi)
+        fm.model = replace(m, B=oe.B, D=oe.D)
+        fm.x0, fm.theta = oe.x0, oe.theta
+        fm.simulation_fit = True
+        return
+    q = measured_spring_force(fm, data)
+    j = sp.cubic_input
+    m0, best = m, None
+    for form in ("input", "free"):
+        a, c, t, x, v, w = _refine_spring(m0, data, u, q, j, rows, phi, form)
+        m = _to_basis(m0, a, c, t)
+        oe = fit_output_error(LinearDynamics.build(a, c, data.n), data.y, v, rows, phi, w)
+        b_all, d_all = oe.B, oe.D
+        if form == "input":  # the force acts where input j acts: b_q = -k B_j, d_q = -k D_j
+            b_all = np.column_stack([oe.B, -x * oe.B[:, j]])
+            d_all = np.column_stack([oe.D, -x * oe.D[:, j]])
+        row = cubic_coordinate(a, c[sp.cubic_channel], data.fs, sp.cubic_integrals)
+        cz = row / fm.cubic_scale
+        dyn = LinearDynamics.build(a, np.vstack([c, cz]), data.n)
+        with np.errstate(all="ignore"):
+            ys, _ = simulate_cubic(dyn, b_all, d_all, u, oe.x0)
+        add = 0.0 if phi is None or oe.theta is None else phi @ oe.theta
+        err = (data.y - ys - add)[rows]
+        cost = float(np.mean(err**2)) if np.all(np.isfinite(err)) else np.inf
+        if best is None or cost < best[0]:
+            best = (cost, replace(m, B=b_all, D=d_all), oe.x0, oe.theta, cz, form)
+    _, fm.model, fm.x0, fm.theta, fm.cubic_c, fm.cubic_form = best
+    fm._dyn = None
+    fm.simulation_fit = True
+
+
+def _refine_spring(m, data, u, q, j, rows, phi, form):
+    """Poles (and the stiffness k of the "input" form) by output error with the force q
+    given: "input" form: the force acts where input j acts (u_j - k q, one parameter);
+    "free" form: the force is one more input with its own b_q, d_q (a discrete model of a
+    spring whose force does not enter exactly like the input). Returns (A, C, T, k, v, w)."""
+    if form == "input":
+        k0 = -(m.B[:, -1] @ m.B[:, j]) / max(m.B[:, j] @ m.B[:, j], 1e-300)
+
+        def signals(extra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            v, w = u.copy(), u.copy()
+            v[:, j] -= extra[0] * 0.5 * (q + next_sample(q))
+            w[:, j] -= extra[0] * q
+            return v, w
+
+        a, c, t, x = refine_poles(
+            m.A, m.C, data.y, rows, signals, np.array([k0]), phi, REFINE_EVALUATIONS
+        )
+        return (a, c, t, float(x[0]), *signals(x))
+    v, w = spring_inputs(u, q)
+    a, c, t, _ = refine_poles(
+        m.A, m.C, data.y, rows, lambda _: (v, w), np.zeros(0), phi, REFINE_EVALUATIONS
+    )
+    return a, c, t, 0.0, v, w
+
+
+def _to_basis(m: IdentifiedModel, a: np.ndarray, c: np.ndarray, t: np.ndarray) -> IdentifiedModel:
+    """The model in the modal basis T with new dynamics A (C = C_old T); noise covariances
+    transformed and the Kalman gain re-solved for the new A."""
+    ti = np.linalg.inv(t)
+    q, s = ti @ m.Q @ ti.T, ti @ m.S
+    k, re = kalman_gain(a, c, q, s, m.R)
+    return replace(m, A=a, C=c, B=ti @ m.B, K=k, Q=q, S=s, innovation_covariance=re)
+
+
+def _refine_theta(
+    fm: FittedModel,
+    data: ValidationData,
+    phi: np.ndarray,
+    yc: np.ndarray,
+    ue: np.ndarray,
+    split: Split,
+) -> None:
+    """theta += argmin || e - F(Phi) dtheta || on the estimation part, F the innovation filter
+    (one-step prediction error: output-only data, LPV and closed-loop structures)."""
+    l = data.n_outputs
+    e = (yc - fm._core_predict(data, yc, ue))[split.est]
+    zero_u = np.zeros_like(ue)
+    cols = []
+    for j in range(phi.shape[1]):
+        for c in range(l):
+            x = np.zeros((data.n, l))
+            x[:, c] = phi[:, j]
+            cols.append((x - fm._core_predict(data, x, zero_u))[split.est].ravel())
+    design = np.column_stack(cols)
+    d = lstsq(design, e.ravel())
+    fm.theta = fm.theta + d.reshape(phi.shape[1], l)
