@@ -12,8 +12,9 @@ torsion (5.18 Hz), with modal gains set so that without a notch the SWB peak of 
 +6 dB at the start (the torsion -6 dB). Controller: PI, crossover 0.5 Hz (the
 notch node's ``crossover_frequency``). Notches: the adaptive bank driven by the real
 identification of the bag (``sysid_node`` processing, the main job's YAML, as in
-``wing_notch_figures.py``), the static notch covering 2.6-3.0 Hz with the same depth and
-guaranteed attenuation (``sections.covering_notch``), and none.
+``wing_notch_figures.py``), the static notch that guarantees the same peak reduction over the
+whole 2.6-3.0 Hz drift (``resonance.guaranteeing_notch``, the notch node's ``peak_reduction``
+and ``depth``), and none.
 
 Prints margins every 5 s and their worst case over the drift (10-60 s): phase margin at the
 crossover, smallest |phase margin| over all gain crossings, gain margin, closed-loop stability
@@ -32,15 +33,15 @@ import numpy as np
 import yaml
 from notch_filter_node.adaptive import AdaptiveNotchFilter
 from sysid_node.core.loop_analysis import loop_margins
-from wing_notch_figures import CONFIG, estimates, true_track
+from wing_notch_figures import CONFIG, estimates
 
 from notch_filter_node import params as NP
+from notch_filter_node import resonance as R
 from notch_filter_node import sections as S
 
 REPO = Path(__file__).resolve().parents[1]
 BLOCK = 5  # samples per bank call
 CROSSOVER_HZ = 0.5
-F_LO, F_HI = 2.6, 3.0
 
 
 def rigid_plant() -> ct.TransferFunction:
@@ -73,6 +74,21 @@ def peak_gain(sys: ct.LTI, f_hz: float) -> float:
     return abs(complex(np.asarray(sys.frequency_response([2 * np.pi * f_hz]).complex).ravel()[0]))
 
 
+def _summary(span: str, rows: list[dict]) -> None:
+    print(f"\n{span}, worst case:")
+    for name in ("adaptive", "static", "none"):
+        ms = [r[name] for r in rows]
+        ok = [m for m in ms if m.stable]
+        if not ok:
+            print(f"  {name:<9s} stable 0/{len(ms)}")
+            continue
+        print(f"  {name:<9s} stable {len(ok)}/{len(ms)}, phase margin at crossover min "
+              f"{min(m.phase_margin_deg for m in ok):.2f} deg, smallest |PM| over all crossings "
+              f"{min(m.min_phase_margin_deg for m in ok):.2f} deg, gain margin min "
+              f"{min(m.gain_margin_db for m in ok):.2f} dB, notch lag at crossover max "
+              f"{max(m.notch_phase_lag_deg for m in ms):.3f} deg")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--bag", type=Path, default=REPO / "bags" / "wing_bending_drift")
@@ -85,7 +101,6 @@ def main(argv: list[str] | None = None) -> int:
     section = next(v for k, v in doc.items() if k.endswith("notch_filter_node"))  # "/**/..."
     values = {**NP.defaults(), **section["ros__parameters"]}
     cfg = NP.policy_config(values)
-    tk, fk = true_track(truth, "symmetric_wing_beam")
     swb = next(m for m in truth["modes"] if m["name"] == "symmetric_wing_beam")
 
     def swb_at(t: float) -> tuple[float, float]:
@@ -98,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     g_swt = 0.5 / peak_gain(c * mode_tf(5.18, 0.0458), 5.18)  # -6 dB
 
     filt = AdaptiveNotchFilter(cfg, fs, 1)
-    static = S.covering_notch(F_LO, F_HI, cfg.depth, cfg.min_attenuation, fs)
+    static = R.guaranteeing_notch(min(swb["frequency_hz"]), max(swb["frequency_hz"]),
+                                  max(swb["damping_ratio"]), cfg.peak_reduction, cfg.depth, fs)
     static_sos = S.notch_sos(static.center, static.bandwidth, static.depth_db, fs)
     times = np.arange(0.5, duration + 1e-9, 0.5)
     rows = []
@@ -132,24 +148,15 @@ def main(argv: list[str] | None = None) -> int:
         return f"{m.phase_margin_deg:.2f}" if m.stable else "unstable"
 
     for r in rows:
-        if abs(r["t"] % 5.0) > 1e-9:
-            continue
+        if abs(r["t"] % 5.0) > 1e-9 and not (r["t"] < 5.0 and abs(r["t"] % 1.0) < 1e-9):
+            continue  # every 5 s, every second during the first 5 s
         a, s, n = r["adaptive"], r["static"], r["none"]
         print(f"{r['t']:6.1f} {r['swb_hz']:7.3f} | {pm(a):>10s}{pm(s):>10s}{pm(n):>12s} | "
               f"{a.gain_margin_db:8.2f}{s.gain_margin_db:8.2f}{n.gain_margin_db:10.2f} | "
               f"{a.notch_phase_lag_deg:11.3f}{s.notch_phase_lag_deg:11.3f}")
-    drift = [r for r in rows if r["t"] >= 10.0]
-    print("\nover the drift (10-60 s), worst case:")
-    for name in ("adaptive", "static", "none"):
-        ms = [r[name] for r in drift]
-        st = sum(m.stable for m in ms)
-        print(f"  {name:<9s} stable {st}/{len(ms)}, phase margin at crossover min "
-              f"{min(m.phase_margin_deg for m in ms if m.stable) if st else float('nan'):.2f} "
-              f"deg, smallest |PM| over all crossings "
-              f"{min(m.min_phase_margin_deg for m in ms if m.stable) if st else float('nan'):.2f}"
-              f" deg, gain margin min "
-              f"{min(m.gain_margin_db for m in ms if m.stable) if st else float('nan'):.2f} dB, "
-              f"notch lag at crossover max {max(m.notch_phase_lag_deg for m in ms):.3f} deg")
+    for span, sel in (("start, identification converging (0-10 s)", lambda t: t < 10.0),
+                      ("over the drift (10-60 s)", lambda t: t >= 10.0)):
+        _summary(span, [r for r in rows if sel(r["t"])])
     if args.figure:
         import matplotlib
 

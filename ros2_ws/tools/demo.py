@@ -117,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--params-file", type=Path, default=DEFAULT_PARAMS, help="YAML for both nodes")
     ap.add_argument("--rate", type=float, default=2.0, help="replay speed factor (default 2)")
     ap.add_argument("--report-only", action="store_true", help="re-analyse the last recording")
+    ap.add_argument("--hogs", type=int, default=0,
+                    help="busy-loop processes to run meanwhile (a loaded flight computer)")
     args = ap.parse_args(argv)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
@@ -129,7 +131,14 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.monotonic()
         recorded = args.out / "recorded"
         if not args.report_only:
-            recorded = run_pipeline(args.bag, args.out, args.params_file, args.rate)
+            hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                    for _ in range(max(args.hogs, 0))]
+            try:
+                recorded = run_pipeline(args.bag, args.out, args.params_file, args.rate)
+            finally:
+                for p in hogs:  # ours, by pid
+                    p.kill()
+                    p.wait(timeout=10)
         result = analyse(args.bag, recorded, args.params_file)
         print(result.table())
         print(result.peak_table())

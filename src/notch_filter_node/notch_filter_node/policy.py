@@ -5,27 +5,30 @@ the bank (:class:`~notch_filter_node.sections.SectionParams`), a status per notc
 state with its transitions.
 
 Which modes get a notch: a mode is notched once its status is ``tracked``, its frequency lies in
-``[freq_min, freq_max]``, its damping is at most ``damping_max`` and its amplitude is at least
+``[freq_min, freq_max]``, its damping is at most ``damping_max`` and low enough that its resonance
+stands ``peak_reduction`` above its static gain, and its amplitude is at least
 ``min_relative_amplitude`` times the largest such mode's (a mode that small hardly reaches the
-feedback signal, and is often a noise mode with a wide uncertainty). When there are more such
-modes than sections, the modes that already have a notch keep it and the largest come next.
+feedback signal, and is often a noise mode with a wide uncertainty). When there are more such modes
+than sections, the modes that already have a notch keep it and the largest come next.
 
-Width from the resonance it must suppress (:mod:`notch_filter_node.resonance`): each notch is the
-narrowest (at ``depth``) whose peak reduction of the mode ``G = 1 / (1 - r^2 + 2 j zeta r)`` is at
-least ``peak_reduction`` for every mode in its uncertainty box: frequency ``f +- h``, ``h = sigma_k
-sigma_f + max(|drift rate| + sigma_k se, drift_rate_min f) age``, damping up to ``zeta +
-damping_sigma_k sigma_zeta`` (at most ``damping_max``), the notch sitting at its (hysteresis-held)
-centre. The drift rate is the least-squares slope of the mode's recent estimates (``drift_window``)
-with its standard error ``se``; ``age`` is the estimate's age, so a late estimate widens the notch
-by the drift the mode could have made since. A box is designed ahead, for the age plus
-``max(design_horizon, half the time since the estimate arrived)``, and re-designed when the age
-outgrows it (a few times over a long gap, not at every block). Where no notch up to
-``bandwidth_max`` reaches the requirement (a well-damped mode: its peak is less than that above its
-static gain), the notch is the narrowest within 1 dB of the best such notch, and says so. Then the
-phase budget: when the adaptive notches together lag more than ``phase_lag_budget`` at
-``crossover_frequency``, either they are narrowed by a common factor (``budget_priority:
-phase_lag``; their guaranteed peak reduction drops and each says so) or they keep their width and
-the bank says the budget is exceeded (``peak_reduction``).
+The mode's model (frequency, damping, drift and their uncertainties) comes from its recent
+estimates (:mod:`notch_filter_node.smoothing`). Width from the resonance it must suppress
+(:mod:`notch_filter_node.resonance`): each notch is the narrowest (at ``depth``) whose peak
+reduction of the mode ``G = 1 / (1 - r^2 + 2 j zeta r)`` is at least ``peak_reduction`` for every
+mode in its uncertainty region: frequency ``f +- h``, ``h = sigma_k sigma_f + max(|drift rate| +
+sigma_k se, drift_rate_min f) age``, damping from ``zeta`` up to ``zeta + damping_sigma_k
+sigma_zeta`` (at most ``damping_max``), an ellipse, the notch sitting at its (hysteresis-held)
+centre. The drift rate is the slope of the mode's recent estimates (``drift_window``) with its
+standard error ``se``;
+``age`` is the estimate's age, so a late estimate widens the notch by the drift the mode could have
+made since. A box is designed ahead, for the age plus ``max(design_horizon, half the time since the
+estimate arrived)``, and re-designed when the age outgrows it (a few times over a long gap, not at
+every block). Where no notch up to ``bandwidth_max`` reaches the requirement (a well-damped mode:
+its peak is less than that above its static gain), the notch is the narrowest within 1 dB of the
+best such notch, and says so. Then the phase budget: when the adaptive notches together lag more
+than ``phase_lag_budget`` at ``crossover_frequency``, either they are narrowed by a common factor
+(``budget_priority: phase_lag``; their guaranteed peak reduction drops and each says so) or they
+keep their width and the bank says the budget is exceeded (``peak_reduction``).
 
 Bank states (sysid_msgs/NotchBank), in order of degradation:
 
@@ -59,6 +62,7 @@ import numpy as np
 
 from notch_filter_node import resonance as R
 from notch_filter_node import sections as S
+from notch_filter_node import smoothing as SM
 
 # Notch states (constants of sysid_msgs/Notch)
 TRACKING, HOLDING, PARKED, DISABLED, PREDICTED = 0, 1, 2, 3, 4
@@ -205,7 +209,7 @@ class Slot:
     stamp: float = math.nan
     received: float = math.nan
     # the box the desired bandwidth was designed for, and what it guarantees there
-    design: tuple[float, float, float, float] = (math.nan, math.nan, math.nan, math.nan)
+    design: tuple[float, ...] = (math.nan,) * 5  # f_lo, f_hi, zeta_hi, centre, zeta_c
     guaranteed: float = math.nan  # [dB] peak reduction over the box, this notch alone
     limit: str = ""  # why ``guaranteed`` is below the requirement ('' when it is not)
 
@@ -279,7 +283,7 @@ class RetuningPolicy:
         self.transitions: list[Transition] = []  # drained by the caller
         self.counts: dict[str, int] = {}
         self._fault_since = math.nan
-        self._history: dict[int, list[tuple[float, float]]] = {}
+        self._history: dict[int, list[tuple[float, ...]]] = {}  # (t, f, f_std, zeta, zeta_std)
         self._params: S.SectionParams | None = None  # returned again while nothing moves
 
     # ---- configuration ----
@@ -297,7 +301,7 @@ class RetuningPolicy:
         fb.target_center = config.fallback_center
         fb.target_bandwidth = config.fallback_bandwidth
         for s in self.slots[:-1]:
-            s.design = (math.nan,) * 4  # re-design every notch under the new rules
+            s.design = (math.nan,) * 5  # re-design every notch under the new rules
         if self.good is not None and self.bank_state in (BANK_TRACKING, BANK_HOLDING):
             self._match(self.good)
         else:
@@ -310,7 +314,7 @@ class RetuningPolicy:
         self.fs = float(fs)
         self._params = None
         for s in self.slots[:-1]:
-            s.design = (math.nan,) * 4
+            s.design = (math.nan,) * 5
         self._redesign(self._budgeted(), force=True)
         self._apply_budget()
         self.revision += 1
@@ -377,14 +381,13 @@ class RetuningPolicy:
         return ""
 
     def _remember(self, est: EstimateInput) -> None:
-        """Keep the recent frequencies of tracked modes (drift-rate fit)."""
+        """Keep the recent estimates of tracked modes (the mode models' window)."""
         keep = est.stamp - self.config.drift_window
-        seen = set()
         for m in est.modes:
             if m.status == "tracked" and math.isfinite(m.frequency_hz):
-                h = self._history.setdefault(int(m.id), [])
-                h.append((est.stamp, m.frequency_hz))
-                seen.add(int(m.id))
+                self._history.setdefault(int(m.id), []).append(
+                    (est.stamp, m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
+                     m.damping_std))
         for mid in list(self._history):
             h = [p for p in self._history[mid] if p[0] >= keep]
             if h:
@@ -392,32 +395,27 @@ class RetuningPolicy:
             else:
                 del self._history[mid]
 
-    def drift_rate(self, mode_id: int) -> tuple[float, float]:
-        """Least-squares drift rate [Hz/s] of a mode over ``drift_window`` and its standard
-        error; (0, 0) with fewer than 4 estimates or spanning under a quarter of the window."""
-        h = self._history.get(int(mode_id), [])
-        if len(h) < 4:
-            return 0.0, 0.0
-        t, f = np.array(h).T
-        if t[-1] - t[0] < 0.25 * self.config.drift_window:
-            return 0.0, 0.0
-        tc = t - t.mean()
-        sxx = float(tc @ tc)
-        if sxx <= 0:
-            return 0.0, 0.0
-        slope = float(tc @ (f - f.mean())) / sxx
-        res = f - f.mean() - slope * tc
-        se = math.sqrt(float(res @ res) / (len(h) - 2) / sxx)
-        return slope, se
+    def mode_model(self, m: ModeInput) -> SM.ModeModel:
+        """The mode's model from its estimates over ``drift_window`` (:mod:`smoothing`); the
+        estimate itself while the window is short."""
+        h = self._history.get(int(m.id))
+        if not h:
+            return SM.ModeModel(m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
+                                m.damping_std)
+        t, f, sf, z, sz = (np.array(v, dtype=float) for v in zip(*h, strict=True))
+        return SM.model(t, f, sf, z, sz, self.config.drift_window)
 
     def _usable(self, est: EstimateInput) -> dict[int, ModeInput]:
         c = self.config
         usable = {}
+        # a resonance that stands less than the requirement above its static gain cannot be
+        # brought down by it with any notch: no phase is spent on it
+        z_most = min(c.damping_max, damping_for_peak(c.peak_reduction))
         for m in est.modes:
             f = m.frequency_hz
             z = m.damping_ratio
             if (m.status == "tracked" and math.isfinite(f) and c.freq_min <= f <= self.fmax
-                    and not (math.isfinite(z) and z > c.damping_max)):
+                    and not (math.isfinite(z) and z > z_most)):
                 usable[int(m.id)] = m
         amps = [m.amplitude for m in usable.values() if math.isfinite(m.amplitude)]
         if amps and c.min_relative_amplitude > 0:
@@ -425,6 +423,23 @@ class RetuningPolicy:
             usable = {k: m for k, m in usable.items()
                       if not (math.isfinite(m.amplitude) and m.amplitude < floor)}
         return usable
+
+    def _one_per_resonance(self, usable: dict[int, ModeInput]) -> dict[int, ModeInput]:
+        """Two tracks within one resonance (closer than the larger half-power half-width plus
+        ``sigma_k`` frequency stds: a split track) get one notch, the first in ``usable``'s
+        order (the one already notched, else the larger)."""
+        k = self.config.sigma_k
+        kept: dict[int, ModeInput] = {}
+        for mid, m in usable.items():
+            z = m.damping_ratio if math.isfinite(m.damping_ratio) else 0.0
+            sf = m.frequency_std_hz if math.isfinite(m.frequency_std_hz) else 0.0
+            if not any(abs(m.frequency_hz - o.frequency_hz) < max(
+                    z * m.frequency_hz, (o.damping_ratio if math.isfinite(o.damping_ratio)
+                                         else 0.0) * o.frequency_hz) + k * max(
+                    sf, o.frequency_std_hz if math.isfinite(o.frequency_std_hz) else 0.0)
+                    for o in kept.values()):
+                kept[mid] = m
+        return kept
 
     def _match(self, est: EstimateInput, following: int | None = None) -> None:
         """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING
@@ -438,20 +453,22 @@ class RetuningPolicy:
             kv[0] not in held,
             -(kv[1].amplitude if math.isfinite(kv[1].amplitude) else -math.inf))))
         by_id = {s.mode_id: s for s in adaptive if s.state != DISABLED or s.depth > 0}
+        usable = self._one_per_resonance(usable)
         new: list[Slot] = []
         touched: list[Slot] = []
         if following is None:
             following = TRACKING if self.bank_state == BANK_TRACKING else HOLDING
         for mid, m in usable.items():
+            mm = self.mode_model(m)
             slot = by_id.get(mid)
             if slot is None:
                 slot = next((s for s in adaptive if s.state == DISABLED and s.depth <= 0), None)
                 if slot is None:
                     continue  # bank full: the mode waits for a free section
                 slot.mode_id = mid
-                slot.center = slot.target_center = m.frequency_hz
+                slot.center = slot.target_center = mm.frequency
                 slot.shape_depth = c.depth
-                slot.design = (math.nan,) * 4
+                slot.design = (math.nan,) * 5
                 new.append(slot)
                 self.revision += 1
             if slot.state != following or slot.late != (following == HOLDING):
@@ -460,12 +477,12 @@ class RetuningPolicy:
                 slot.hold_since = math.nan if following == TRACKING else est.stamp
                 self.revision += 1
             slot.target_depth = c.depth
-            sf = m.frequency_std_hz if math.isfinite(m.frequency_std_hz) else 0.0
-            if abs(m.frequency_hz - slot.target_center) > max(c.hysteresis,
-                                                               c.hysteresis_sigma * sf):
-                slot.target_center = m.frequency_hz
+            sf = mm.frequency_std if math.isfinite(mm.frequency_std) else 0.0
+            if abs(mm.frequency - slot.target_center) > max(c.hysteresis,
+                                                             c.hysteresis_sigma * sf):
+                slot.target_center = mm.frequency
                 self.revision += 1
-            self._set_model(slot, m, est)
+            self._set_model(slot, mm, est)
             touched.append(slot)
         for slot in adaptive:
             if slot.mode_id not in usable and (slot.state == TRACKING
@@ -476,18 +493,17 @@ class RetuningPolicy:
         for slot in new:  # depth 0 yet: start at the budget-limited width, no sweep down
             slot.bandwidth = slot.target_bandwidth
 
-    def _set_model(self, slot: Slot, m: ModeInput, est: EstimateInput) -> None:
+    def _set_model(self, slot: Slot, mm: SM.ModeModel, est: EstimateInput) -> None:
         c = self.config
-        slot.f = m.frequency_hz
-        slot.f_std = m.frequency_std_hz
-        slot.zeta = m.damping_ratio
-        if math.isfinite(m.damping_ratio):
-            zstd = m.damping_std if math.isfinite(m.damping_std) else 0.0
-            slot.zeta_hi = min(m.damping_ratio + c.damping_sigma_k * zstd, c.damping_max)
+        slot.f = mm.frequency
+        slot.f_std = mm.frequency_std
+        slot.zeta = mm.damping
+        if math.isfinite(mm.damping):
+            zstd = mm.damping_std if math.isfinite(mm.damping_std) else 0.0
+            slot.zeta_hi = min(mm.damping + c.damping_sigma_k * zstd, c.damping_max)
         else:
             slot.zeta_hi = c.damping_max
-        slope, se = self.drift_rate(m.id)
-        slot.drift = abs(slope) + c.sigma_k * se
+        slot.drift = abs(mm.drift) + c.sigma_k * mm.drift_std
         slot.stamp = est.stamp
         slot.received = est.received
 
@@ -520,17 +536,24 @@ class RetuningPolicy:
         since = now - s.received if math.isfinite(s.received) and math.isfinite(now) else age
         return age + max(self.config.design_horizon, GAP_GROWTH * max(since, 0.0))
 
+    @staticmethod
+    def _zeta_c(s: Slot) -> float:
+        """Centre of the damping range of a slot's mode (the estimate, at most the top)."""
+        return min(s.zeta, s.zeta_hi) if math.isfinite(s.zeta) else s.zeta_hi
+
     def _budgeted(self) -> list[Slot]:
         return [s for s in self.slots[:-1]
                 if s.state == TRACKING or (s.state == HOLDING and s.late)]
 
     def _needs_design(self, s: Slot, age: float) -> bool:
-        lo, hi, zeta, centre = s.design
+        lo, hi, zeta, centre, zeta_c = s.design
         if not math.isfinite(s.f_std):
             return centre != s.target_center
         h = self.half_width(s, age)
+        # the new region lies inside the designed one (interval inside, damping centre and top
+        # not higher): the design still holds
         if not (s.f - h >= lo and s.f + h <= hi and s.zeta_hi <= zeta
-                and centre == s.target_center):
+                and self._zeta_c(s) <= zeta_c and centre == s.target_center):
             return True  # outgrown (or never designed)
         h_ahead = self.half_width(s, age + self.config.design_horizon)
         return 2.0 * h_ahead < NARROW_FRACTION * (hi - lo)  # could be markedly narrower
@@ -545,7 +568,7 @@ class RetuningPolicy:
         if todo:
             unknown = [s for s in todo if not math.isfinite(s.f_std)]
             for s in unknown:  # no frequency std: the widest notch
-                s.design = (math.nan, math.nan, math.nan, s.target_center)
+                s.design = (math.nan, math.nan, math.nan, s.target_center, math.nan)
                 s.guaranteed, s.limit = math.nan, "frequency std unknown"
                 self._set_desired(s, c.bandwidth_max)
             known = [s for s in todo if math.isfinite(s.f_std)]
@@ -559,23 +582,24 @@ class RetuningPolicy:
         f = np.array([s.f for s in slots])
         h = np.array([self.half_width(s, a) for s, a in zip(slots, ages, strict=True)])
         zeta = np.array([s.zeta_hi for s in slots])
+        zc = np.array([self._zeta_c(s) for s in slots])
         tc = np.array([s.target_center for s in slots])
         lo, hi = f - h, f + h
         zp_min, _ = S.pole_zero_damping(tc, np.minimum(c.bandwidth_min, c.bandwidth_max),
                                         c.depth, self.fs)
         zp_max, _ = S.pole_zero_damping(tc, c.bandwidth_max, c.depth, self.fs)
         zp, worst = R.design_zp(tc, lo, hi, zeta, c.peak_reduction, c.depth, self.fs,
-                                zp_min, zp_max)
+                                zp_min, zp_max, zeta_c=zc)
         short = worst < c.peak_reduction - R.DECISION_MARGIN_DB
         if short.any():  # unattainable: the narrowest within SHORTFALL_SLACK_DB of the best
             k = np.flatnonzero(short)
             zp_k, worst_k = R.design_zp(tc[k], lo[k], hi[k], zeta[k],
                                         float(np.min(worst[k])) - SHORTFALL_SLACK_DB,
-                                        c.depth, self.fs, zp_min[k], zp_max[k])
+                                        c.depth, self.fs, zp_min[k], zp_max[k], zeta_c=zc[k])
             zp[k], worst[k] = zp_k, worst_k
         bw = S.bandwidth_from_zp(tc, zp, c.depth, self.fs)
         for i, s in enumerate(slots):
-            s.design = (float(lo[i]), float(hi[i]), float(zeta[i]), float(tc[i]))
+            s.design = (float(lo[i]), float(hi[i]), float(zeta[i]), float(tc[i]), float(zc[i]))
             s.guaranteed = float(worst[i])
             s.limit = (f"at most {worst[i]:.1f} dB within bandwidth_max (damping "
                        f"{zeta[i]:.3f})" if short[i] else "")
@@ -634,7 +658,8 @@ class RetuningPolicy:
                 np.array([s.design[0] for s in narrowed]),
                 np.array([s.design[1] for s in narrowed]),
                 np.array([s.design[2] for s in narrowed]),
-                tc[:, None], zp[:, None], zz[:, None], self.fs)
+                tc[:, None], zp[:, None], zz[:, None], self.fs,
+                zeta_c=np.array([s.design[4] for s in narrowed]))
             for s, w in zip(narrowed, worst, strict=True):
                 s.guaranteed = float(w)
                 if w < c.peak_reduction - R.DECISION_MARGIN_DB:
@@ -810,7 +835,8 @@ class RetuningPolicy:
                       if math.isfinite(s.f_std) else 0.0 for s in sl])
         zeta = np.array([s.zeta_hi for s in sl])
         z0 = np.array([s.zeta if math.isfinite(s.zeta) else s.zeta_hi for s in sl])
-        fb, zb = R.box_modes(f - h, f + h, zeta)  # the box's sample modes, then the estimate
+        zc = np.array([self._zeta_c(s) for s in sl])
+        fb, zb = R.box_modes(f - h, f + h, zeta, zc)  # the region's sample modes, the estimate
         fm = np.concatenate([fb, f[:, None]], axis=1)
         zm = np.concatenate([zb, z0[:, None]], axis=1)
         span = min(float(np.sum(p.depth_db[on])) + 6.0, 80.0)  # no more reduction possible
@@ -828,6 +854,13 @@ class RetuningPolicy:
                                      p.shape_depth_db[on])
         return float(np.sum(S.damping_lag_deg(self.config.crossover_frequency, p.center[on],
                                               zp, zz, self.fs)))
+
+
+def damping_for_peak(peak_db: float) -> float:
+    """Damping ratio whose resonance peak stands ``peak_db`` above the mode's static gain
+    (``1 / (2 zeta sqrt(1 - zeta^2))``); 1/sqrt(2) for 0 dB."""
+    g = 10.0 ** (-max(peak_db, 0.0) / 20.0)  # = 2 zeta sqrt(1 - zeta^2)
+    return math.sqrt(max(0.5 * (1.0 - math.sqrt(max(1.0 - g * g, 0.0))), 0.0))
 
 
 def _toward(x: float, target: float, step: float) -> float:

@@ -24,8 +24,8 @@ maximum), then refined by a parabola through the largest sample and its neighbou
 :func:`design_zp` finds the narrowest notch (smallest pole damping ``zp`` at a fixed depth) whose
 peak reduction reaches a required value for every mode in an uncertainty box (frequency interval,
 damping interval); the peak reduction falls as the mode moves off the notch centre and as its
-damping grows, so the box is sampled at its frequency edges, centre and quarter points at its
-largest damping.
+damping grows, so the region (an ellipse in frequency x damping) is sampled on its upper
+boundary.
 """
 
 from __future__ import annotations
@@ -44,8 +44,9 @@ from notch_filter_node.sections import (
 GRID_STEP = 0.1
 #: Smallest damping ratio the grid is built for (an undamped mode has an infinite peak).
 ZETA_FLOOR = 1e-4
-#: Frequency offsets (fractions of the interval half-width) at which a box is checked.
-BOX_OFFSETS = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+#: Angles on the upper half of an uncertainty ellipse at which it is checked: frequency offset
+#: ``cos`` of the half-width, damping ``sin`` of the way from its centre to its top.
+BOX_ANGLES = np.radians([0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0])
 #: The width search decides on unrefined grid maxima with this margin [dB].
 DECISION_MARGIN_DB = 0.05
 
@@ -132,16 +133,21 @@ def peak_reduction_db(
 
 
 def box_modes(
-    f_lo: np.ndarray, f_hi: np.ndarray, zeta_hi: np.ndarray
+    f_lo: np.ndarray, f_hi: np.ndarray, zeta_hi: np.ndarray, zeta_c: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sample modes ``(..., m)`` of an uncertainty box: :data:`BOX_OFFSETS` over the frequency
-    interval, at the box's largest damping (the peak reduction only grows as the damping falls:
-    a lighter mode's resonance is narrower, so more of it sits inside the notch)."""
+    """Sample modes ``(..., m)`` of an uncertainty region: frequency ``[f_lo, f_hi]`` and
+    damping from ``zeta_c`` (its centre) up to ``zeta_hi``, an ellipse (a joint confidence
+    region: the corner "frequency at its edge and damping at its top" is not in it); default
+    ``zeta_c = zeta_hi``, the whole interval at ``zeta_hi``. Only the upper boundary is sampled
+    (:data:`BOX_ANGLES`): at any frequency the reduction only grows as the damping falls (a
+    lighter mode's resonance is narrower, so more of it sits inside the notch)."""
     f_lo, f_hi = np.asarray(f_lo, dtype=float), np.asarray(f_hi, dtype=float)
+    zeta_hi = np.asarray(zeta_hi, dtype=float)
+    zeta_c = zeta_hi if zeta_c is None else np.asarray(zeta_c, dtype=float)
     mid, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
-    f = mid[..., None] + BOX_OFFSETS * half[..., None]
-    z = np.broadcast_to(np.asarray(zeta_hi, dtype=float)[..., None], f.shape)
-    return f, z
+    f = mid[..., None] + np.cos(BOX_ANGLES) * half[..., None]
+    z = zeta_c[..., None] + np.sin(BOX_ANGLES) * (zeta_hi - zeta_c)[..., None]
+    return f, np.broadcast_to(z, f.shape)
 
 
 def worst_peak_reduction_db(
@@ -152,10 +158,12 @@ def worst_peak_reduction_db(
     zp: np.ndarray,
     zz: np.ndarray,
     fs: float,
+    zeta_c: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Smallest peak reduction [dB] over the uncertainty boxes (shape ``(...)``) of the cascade
-    ``(center, zp, zz)``: ``(k,)`` is one bank for all boxes, ``(..., k)`` one per box."""
-    f, z = box_modes(f_lo, f_hi, zeta_hi)
+    """Smallest peak reduction [dB] over the uncertainty regions (shape ``(...)``, see
+    :func:`box_modes`) of the cascade ``(center, zp, zz)``: ``(k,)`` is one bank for all,
+    ``(..., k)`` one per region."""
+    f, z = box_modes(f_lo, f_hi, zeta_hi, zeta_c)
     center, zp, zz = (np.asarray(a, dtype=float) for a in (center, zp, zz))
     if center.ndim > 1:  # one cascade per box: shared by the box's sample modes
         center, zp, zz = center[..., None, :], zp[..., None, :], zz[..., None, :]
@@ -174,16 +182,17 @@ def design_zp(
     zp_max: np.ndarray,
     candidates: int = 24,
     passes: int = 2,
+    zeta_c: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Narrowest single notches (pole damping ``zp``, depth ``depth_db``, centred at ``center``)
     whose peak reduction is at least ``required_db`` for every mode of the boxes
-    ``[f_lo, f_hi] x (0, zeta_hi]`` (shape ``(n,)``), searched in ``[zp_min, zp_max]``
+    (:func:`box_modes`; shape ``(n,)``), searched in ``[zp_min, zp_max]``
     (``passes`` rounds of log-spaced candidates, each inside the last bracket, all
     notches at once: 2 rounds resolve about 1 % of zp over a 100:1 range). Returns
     ``(zp, worst reduction [dB])``; where even ``zp_max`` falls short, ``zp_max`` and its
     (smaller) reduction."""
     g = 10.0 ** (-depth_db / 20.0)
-    fm, z = box_modes(f_lo, f_hi, zeta_hi)  # (n, m)
+    fm, z = box_modes(f_lo, f_hi, zeta_hi, zeta_c)  # (n, m)
     z = np.maximum(z, ZETA_FLOOR)
     # the decision "reduction >= required" only needs the grid where |G| is within
     # required_db (+1 dB) of its peak: |N| <= 1, so nothing outside can exceed the bound

@@ -19,6 +19,8 @@ u = r + K y), simulated by :func:`~sysid_node.scenarios.closedloop.simulate_clos
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..core.closed_loop import ClosedLoopData
@@ -27,6 +29,7 @@ from ..core.lti import ContinuousSystem
 from .closedloop import DiscreteController as LoopController
 from .closedloop import closed_loop_matrices, simulate_closed_loop
 from .paper import cobra_stick_model
+from .timevarying import simulate_scheduled
 
 #: Circulatory stiffness coupling the moving mode and the 36.6 Hz mode [1/s^2].
 CSM_COUPLING = 1200.0
@@ -89,3 +92,48 @@ def closed_loop_experiment(
     y, u = simulate_closed_loop(plant, k, r, fs, w=w, v=v)
     a = closed_loop_matrices(plant, k, fs)[0]
     return ClosedLoopData(r, u, y, fs, float(np.max(np.abs(np.linalg.eigvals(a)))))
+
+
+@dataclass
+class StarvedRun:
+    """Open-loop CSM record whose excitation stops while the rotor speed moves (the online-LPV
+    case): ``t`` [s], ``u`` (N, 2) excitation (zero once starved), ``y`` (N, 2) outputs,
+    ``schedule_t`` / ``rotor_speed`` (10 Hz samples, sensor noise), ``theta`` (N,) true rotor
+    speed, ``starve_time_s``."""
+
+    fs: float
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    schedule_t: np.ndarray
+    rotor_speed: np.ndarray
+    theta: np.ndarray
+    starve_time_s: float
+
+    def moving_mode_hz(self, t: np.ndarray | float) -> np.ndarray:
+        """True frequency of the moving mode (the one nearest the rotor speed) at ``t``."""
+        th = np.interp(t, self.t, self.theta)
+        return np.array([min((f for f, _ in csm_at(x).modes()), key=lambda f, x=x: abs(f - x))
+                         for x in np.atleast_1d(th)])
+
+
+def starved_run(rng: np.random.Generator, fs: float = CSM_FS, excited_s: float = 20.0,
+                starved_s: float = 10.0, speeds: tuple[float, float] = (33.0, 35.0),
+                ambient: float = 0.01, noise_fraction: float = 0.05,
+                speed_noise_hz: float = 0.01) -> StarvedRun:
+    """Rotor speed ``speeds[0]`` while the white test input runs for ``excited_s``, then the
+    input stops and the speed ramps linearly to ``speeds[1]`` over ``starved_s``; an unmeasured
+    ambient input of ``ambient`` times the test level throughout; sensor noise relative to the
+    excited output. Simulated as LPV (2) on a 0.01 Hz grid of rotor speed."""
+    n_exc, n = int(round(excited_s * fs)), int(round((excited_s + starved_s) * fs))
+    t = np.arange(n) / fs
+    theta = np.interp(t, [0.0, excited_s, excited_s + starved_s], [speeds[0], speeds[0],
+                                                                     speeds[1]])
+    u = np.zeros((n, 2))
+    u[:n_exc] = rng.standard_normal((n_exc, 2))
+    drive = u + ambient * rng.standard_normal((n, 2))
+    clean = simulate_scheduled(csm_at, theta, drive, fs, 0.01)
+    y = clean + noise_fraction * np.std(clean[:n_exc], axis=0) * rng.standard_normal(clean.shape)
+    ts = np.arange(0.0, t[-1], 0.1)
+    rs = np.interp(ts, t, theta) + speed_noise_hz * rng.standard_normal(ts.size)
+    return StarvedRun(fs, t, u, y, ts, rs, theta, excited_s)
