@@ -141,6 +141,7 @@ class Pipeline:
             "frequency_gate": v["tracking_frequency_tolerance"],
             "confirm_hits": v["tracking_confirm_count"],
             "lost_timeout_s": v["tracking_lost_timeout"],
+            "max_tracked": v["max_modes"],
         }
 
     def _realization_interval(self) -> int:
@@ -397,7 +398,7 @@ class Pipeline:
         if y.shape[0] - skip < SPECTRUM_MIN_SAMPLES:
             return
         try:
-            e = (y - model.predict(y, u))[skip:]
+            e = (y - model.stable_predictor().predict(y, u))[skip:]
         except (ValueError, np.linalg.LinAlgError):
             return
         if not np.all(np.isfinite(e)):
@@ -419,6 +420,7 @@ class Pipeline:
                         dtype=float).reshape(-1)
         self.records_made += 1
         band = P.effective_band(self.values, self.identification_rate)
+        status = est.status() if hasattr(est, "status") else None  # estimator-side health
         return EstimateRecord(
             stamp_ns=stamp_ns,
             modes=out,
@@ -432,6 +434,8 @@ class Pipeline:
             counters=self.counters,
             band_min_hz=band[0],
             band_max_hz=band[1],
+            health=status.health if status else 0,
+            health_reason=status.reason if status else "",
         )
 
     def _mode_record(self, tm: Any, t: float) -> ModeRecord:
@@ -501,6 +505,8 @@ class Pipeline:
             est.set_forgetting_factor(P.effective_lambda(v, fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
             est.set_band(P.effective_band(v, fs), (v["damping_min"], v["damping_max"]))
+        if "max_modes" in changes and hasattr(self.tracker, "max_tracked"):
+            self.tracker.max_tracked = v["max_modes"]
         if "max_modes" in changes:
             if hasattr(est, "set_max_modes"):
                 est.set_max_modes(v["max_modes"])
