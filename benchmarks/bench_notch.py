@@ -1,12 +1,18 @@
 """Cost per sample of the adaptive notch bank (6 channels x 5 notches) and the highest sample rate
 it sustains on one core, for several block sizes, with the notches fixed and while all of them
-retune.
+retune; then the cost of the width design and the other per-event paths.
 
     ros2_ws/env python benchmarks/bench_notch.py [--fs 1000] [--seconds 0.4] [--substep 8]
 
 Cost = wall time of AdaptiveNotchFilter.process (policy + bank) per sample of all channels,
 median of 5 repeats; "max rate" = 1 / cost: the highest sample rate one core doing nothing else
-sustains at that block size ("retuning" = all five notches slewing all the time).
+sustains at that block size ("retuning" = all five notches slewing all the time, each estimate
+moving every centre, so every estimate re-designs every width).
+
+Second table (median of 20 calls): the width design of 1 and 5 notches (resonance.design_zp over
+the uncertainty region), a whole estimate through the policy (mode models, design, budget), the
+peak reductions the node publishes with every /notch_bank (whole bank x each mode's region), the
+phase lag of the bank, and the node's per-message stamp/rate check.
 """
 
 from __future__ import annotations
@@ -63,6 +69,62 @@ def measure(
     return elapsed / n
 
 
+def per_event(fs: float) -> list[tuple[str, float]]:
+    """Median wall time [us] of the per-event paths (see the module docstring)."""
+    import math
+
+    from notch_filter_node.stream import StampCheck
+
+    from notch_filter_node import resonance as R
+    from notch_filter_node import sections as S
+
+    def median_us(fn, n: int = 20) -> float:
+        times = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return 1e6 * statistics.median(times)
+
+    rows = []
+    for k in (1, NOTCHES):
+        f = np.array(MODES_HZ[:k])
+        zp_min, _ = S.pole_zero_damping(f, 0.05, 30.0, fs)
+        zp_max, _ = S.pole_zero_damping(f, 5.0, 30.0, fs)
+        rows.append((f"width design, {k} notch(es)", median_us(lambda f=f, a=zp_min, b=zp_max: (
+            R.design_zp(f, 0.99 * f, 1.01 * f, np.full(f.size, 0.03), 15.0, 30.0, fs, a, b,
+                        zeta_c=np.full(f.size, 0.02))))))
+    cfg = PolicyConfig(max_notches=NOTCHES, phase_lag_budget=180.0, fallback_depth=0.0,
+                       stale_timeout=100.0, fallback_timeout=200.0)
+    flt = AdaptiveNotchFilter(cfg, fs, CHANNELS)
+    counter = iter(range(10**9))
+
+    def one_estimate() -> None:
+        k = next(counter)
+        flt.set_estimate(estimate(0.1 * k, True, k))
+
+    rows.append((f"an estimate through the policy ({NOTCHES} modes, all moved)",
+                 median_us(one_estimate)))
+    last = flt.policy.estimate.stamp
+    flt.process(np.zeros((int(2 * fs), CHANNELS)), last + 0.05)  # notches faded in
+    if len(flt.status().notches) != NOTCHES:
+        raise SystemExit("bench_notch: error: the notches did not come up for the second table")
+    rows.append(("peak reductions for /notch_bank (whole bank)", median_us(flt.peak_reductions)))
+    rows.append(("phase lag of the bank", median_us(flt.phase_lag)))
+    chk = StampCheck()
+    ns = iter(range(0, 10**15, int(1e9 / fs)))
+
+    def stamp() -> None:
+        t = next(ns)
+        chk.check(t)
+        chk.accept(t, 1)
+        if not math.isnan(chk.rate()):
+            pass
+
+    rows.append(("stamp order + rate check, per message", median_us(stamp, 200)))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fs", type=float, default=1000.0, help="sample rate of the data [Hz]")
@@ -90,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{block:>6} {'retuning' if retune else 'fixed':>9} {cost * 1e6:>10.2f} "
                   f"{cost * 1e6 / CHANNELS:>13.2f} {cost * 1e6 * block:>10.1f} "
                   f"{1e-3 / cost:>15.1f}")
+    print(f"\nper event (fs = {args.fs:g} Hz), median of 20 calls")
+    for label, us in per_event(args.fs):
+        print(f"  {label:<58}{us:>10.1f} us")
     return 0
 
 

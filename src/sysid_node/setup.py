@@ -28,7 +28,7 @@ setup(
         "console_scripts": [
             "replay = sysid_node.tools.replay:main",
             "record = sysid_node.tools.record:main",
-            "sysid_node = sysid_node.node:main",
+            "sysid_node = sysid_node.entry:main",
             "offline = sysid_node.tools.offline:main",
             "validate = sysid_node.tools.validate:main",
             "envelope = sysid_node.tools.envelope:main",

@@ -40,6 +40,16 @@ TIME_JUMP = 1.0
 #: ... and a new time line once such samples span this much data [s].
 TIME_RESET_SPAN = 0.5
 _RECENT = 4096
+#: A sample stamped this far [s] ahead of what its stream has delivered is held as suspect: a
+#: forward clock jump once the held samples span TIME_RESET_SPAN of data, a bad stamp (dropped,
+#: counted) once the stream's own data has moved on by that much without them.
+FUTURE_JUMP = 1.0
+#: A new channel count (or new channel names) held for this much data [s], with nothing in the
+#: old layout meanwhile, is adopted: the estimator restarts on the new layout.
+LAYOUT_CONFIRM_S = 1.0
+#: Held samples per stream at most (suspect stamps, unconfirmed layouts): memory is bounded by
+#: the data received, never by the stamps' span.
+MAX_HELD = 100_000
 #: A measured rate this close to a round value [ppm] is taken as that value.
 SNAP_PPM = 20.0
 
@@ -75,12 +85,17 @@ class _Stream:
     rate: float = math.nan
     mismatch: bool = False
     rejected: bool = False
+    names: tuple[str, ...] | None = None
+    future: list = field(default_factory=list)  # held (t, values) stamped far ahead
+    future_since: float = math.nan  # max_t when the first of them arrived
+    layout: list = field(default_factory=list)  # held (t, values, names) of a new layout
 
     def clear(self) -> None:
         self.t = np.empty(0)
         self.v = None if self.channels is None else np.empty((0, self.channels))
         self.recent = np.empty(0)
         self.max_t = -math.inf
+        self.future, self.future_since = [], math.nan
 
 
 class Ingest:
@@ -145,17 +160,26 @@ class Ingest:
         self.events.append(text)
 
     # ---- input ----
-    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
-        """Add a message block of the output stream (``values`` of shape ``(n, channels)``)."""
-        self._push(self.out, stamps_ns, values)
+    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray,
+                    names: tuple[str, ...] | None = None) -> None:
+        """Add a message block of the output stream (``values`` of shape ``(n, channels)``;
+        ``names``: the channel names the message carries, if any)."""
+        self._push(self.out, stamps_ns, values, names)
 
-    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray,
+                   names: tuple[str, ...] | None = None) -> None:
         """Add a message block of the input (excitation) stream."""
         if not self.use_input:
             return
-        self._push(self.inp, stamps_ns, values)
+        self._push(self.inp, stamps_ns, values, names)
 
-    def _push(self, s: _Stream, stamps_ns: np.ndarray, values: np.ndarray) -> None:
+    def reject(self, stream: str, n: int, key: str, text: str) -> None:
+        """Count ``n`` messages of ``stream`` dropped before conversion (e.g. unreadable)."""
+        self.counters[f"{stream}_{key}"] += n
+        self._event(text)
+
+    def _push(self, s: _Stream, stamps_ns: np.ndarray, values: np.ndarray,
+              names: tuple[str, ...] | None = None) -> None:
         stamps_ns = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         values = np.asarray(values, dtype=float)
         if values.ndim == 1:
@@ -169,15 +193,27 @@ class Ingest:
             self._event(f"{s.name}: malformed block (values {values.shape} for {n} stamps)")
             return
         c = values.shape[1]
+        names = tuple(names) if names and len(names) == c else None
         if s.channels is None and c > 0:
             s.channels = c
             s.v = np.empty((0, c))
-        if c != s.channels:
-            self.counters[f"{s.name}_wrong_channels"] += n
-            self._event(
-                f"{s.name}: {n} sample(s) with {c} channels, expected {s.channels}: dropped"
-            )
-            return
+        if s.names is None and names is not None and c == s.channels:
+            s.names = names
+        if c == s.channels and names is not None and names != s.names:
+            if sorted(names) == sorted(s.names):  # the same channels in another order
+                values = values[:, [names.index(x) for x in s.names]]
+                if not self.counters[f"{s.name}_reordered"]:
+                    self._event(f"{s.name}: channels arrive in another order ({', '.join(names)}"
+                                f"): mapped back by name to {', '.join(s.names)}")
+                self.counters[f"{s.name}_reordered"] += n
+                names = s.names
+        if c != s.channels or (names is not None and names != s.names):
+            if not self._new_layout(s, stamps_ns, values, names):
+                return
+            c = s.channels
+        elif s.layout:
+            self._event(f"{s.name}: back to the {s.channels}-channel layout")
+            s.layout = []
         finite = np.isfinite(values).all(axis=1)
         if not finite.all():
             bad = int(n - finite.sum())
@@ -191,8 +227,46 @@ class Ingest:
         t = (stamps_ns - self.origin_ns) * 1e-9
         self._accept(s, t, values)
 
+    def _new_layout(self, s: _Stream, stamps_ns: np.ndarray, values: np.ndarray,
+                    names: tuple[str, ...] | None) -> bool:
+        """Samples in another channel layout (count or names): dropped and counted while
+        unconfirmed; adopted (True, timeline and estimator reset) once only they have arrived
+        for LAYOUT_CONFIRM_S of data."""
+        n, c = values.shape
+        key = "wrong_channels" if c != s.channels else "channel_names_changed"
+        was = (f"{s.channels} channels" if c != s.channels
+               else f"names {', '.join(s.names or ())}")
+        now = f"{c} channels" if c != s.channels else f"names {', '.join(names or ())}"
+        self.counters[f"{s.name}_{key}"] += n
+        if not s.layout:
+            self._event(f"{s.name}: {n} sample(s) with {now}, expected {was}: dropped")
+        s.layout.append((stamps_ns, values, names))
+        held = sum(len(x[0]) for x in s.layout)
+        span = (max(int(x[0].max()) for x in s.layout)
+                - min(int(x[0].min()) for x in s.layout)) * 1e-9
+        same = all(x[1].shape[1] == c and x[2] == names for x in s.layout)
+        if not same or held > MAX_HELD:
+            s.layout = [(stamps_ns, values, names)]
+            return False
+        if span < LAYOUT_CONFIRM_S:
+            return False
+        self._event(f"{s.name}: {now} instead of {was} for {span:.2f} s of data: new layout "
+                    "adopted, estimator reset")
+        self.counters["layout_changes"] += 1
+        s.channels, s.names, s.layout = c, names, []
+        self._reset_timeline()
+        s.v = np.empty((0, c))
+        return True
+
     def _accept(self, s: _Stream, t: np.ndarray, values: np.ndarray) -> None:
-        """Accept finite samples, or hold them while the output stamps have jumped back."""
+        """Accept finite samples, or hold them while the output stamps have jumped back or
+        they are stamped far ahead of their stream."""
+        if math.isfinite(s.max_t):
+            ahead = _beyond_jump(t, s.max_t)
+            if ahead.any() or s.future:
+                t, values = self._hold_future(s, t, values, ahead)
+                if not len(t):
+                    return
         if s is self.out:
             far = t < self.watermark - TIME_JUMP
             if far.all():
@@ -217,6 +291,30 @@ class Ingest:
             self._jump.append((s, t, values))
             return
         self._accept_now(s, t, values)
+
+    def _hold_future(self, s: _Stream, t: np.ndarray, values: np.ndarray, ahead: np.ndarray):
+        """Hold samples stamped far ahead; return the others. The held ones are accepted as a
+        forward clock jump once they span TIME_RESET_SPAN of data, dropped as bad stamps once
+        the stream's own data moved on by that much without them."""
+        if ahead.any():
+            if not s.future:
+                s.future_since = s.max_t
+            s.future.append((t[ahead], values[ahead]))
+            t, values = t[~ahead], values[~ahead]
+        ft = np.concatenate([x[0] for x in s.future])
+        if float(ft.max() - ft.min()) >= TIME_RESET_SPAN and len(t) == 0:
+            held, s.future = s.future, []
+            self._event(f"{s.name}: stamps jumped ahead by {float(ft.min()) - s.max_t:.3f} s: "
+                        "new data after a gap")
+            return (np.concatenate([x[0] for x in held]),
+                    np.concatenate([x[1] for x in held]))
+        newest = max(s.max_t, float(t.max()) if len(t) else -math.inf)
+        if newest - s.future_since >= TIME_RESET_SPAN or len(ft) > MAX_HELD:
+            self.counters[f"{s.name}_bad_stamp"] += len(ft)
+            self._event(f"{s.name}: {len(ft)} sample(s) stamped {float(ft.min()) - newest:.6g} s "
+                        "or more ahead of the stream: dropped (bad stamp)")
+            s.future = []
+        return t, values
 
     def _accept_now(self, s: _Stream, t: np.ndarray, values: np.ndarray) -> None:
         n = len(t)
@@ -345,6 +443,10 @@ class Ingest:
             self.next_k = k_skip
         if kmax < self.next_k:
             return []
+        # never more grid instants than the samples held could fill (a stamp far ahead
+        # must not allocate a grid over the jump): the rest waits for the next call
+        room = sum(len(s.t) for s in streams) * (self.max_fill + 1) + 1
+        kmax = min(kmax, self.next_k + room)
         k = np.arange(self.next_k, kmax + 1)
         g = self.t0 + k * T
         valid = np.ones(len(g), bool)
@@ -458,6 +560,17 @@ class Ingest:
             self._emitted_any = True
         self._missing(len(k) - pos)
         return chunks
+
+
+def _beyond_jump(t: np.ndarray, last: float) -> np.ndarray:
+    """Samples after the first forward jump of more than FUTURE_JUMP in the stamp-sorted
+    sequence that continues from ``last`` (a block spanning many seconds is no jump)."""
+    tt = np.sort(t)
+    step = np.diff(np.concatenate(([last], tt)))
+    jumps = np.flatnonzero(step > FUTURE_JUMP)
+    if not len(jumps):
+        return np.zeros(len(t), bool)
+    return t >= tt[jumps[0]]
 
 
 def _snap_rate(fs: float) -> float:

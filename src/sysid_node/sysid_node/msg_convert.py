@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from sysid_node.records import EstimateRecord, ModeRecord, SpectrumRecord
+from sysid_node.records import EstimateRecord, ModeRecord, SpectrumRecord, stack_blocks
 
 STATUS_CODES = {"tentative": 0, "tracked": 1, "lost": 2}
 IMU_FIELDS = {
@@ -60,7 +60,8 @@ def signal_block_to_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     n = data.size // c
     period_ns = float(msg.sample_period) * 1e9
     if not math.isfinite(period_ns) or (n > 1 and period_ns <= 0):
-        return np.empty(0, np.int64), np.empty((0, c))
+        raise ValueError(f"SignalBlock of {n} samples with sample_period {msg.sample_period!r} "
+                         "(not a positive finite number): dropped")
     stamps = stamp_ns(msg.header) + np.round(np.arange(n) * period_ns).astype(np.int64)
     return stamps, data.reshape(n, c)
 
@@ -88,6 +89,64 @@ def channel_names(msg: Any, kind: str, axes: Sequence[str] = ("az",)) -> list[st
     if kind == "Imu":
         return list(axes)
     return [str(n) for n in getattr(msg, "channel_names", ())]
+
+
+def _names(msg: Any, kind: str, axes: Sequence[str]) -> tuple[str, ...] | None:
+    return tuple(channel_names(msg, kind, axes)) or None
+
+
+def signal_samples_to_arrays(msgs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Many SignalSample messages of one channel count -> stamps ``(n,)`` [ns], values
+    ``(n, channels)``, without a Python loop over the values (ValueError if the counts
+    differ)."""
+    n = len(msgs)
+    stamps = np.fromiter(
+        (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in msgs),
+        dtype=np.int64, count=n)
+    width = len(msgs[0].values)
+    if any(len(m.values) != width for m in msgs):
+        raise ValueError("channel counts differ")
+    if width == 0:
+        return stamps, np.empty((n, 0))
+    data = b"".join(memoryview(m.values).cast("B") if isinstance(m.values, array.array)
+                    else np.asarray(m.values, dtype=np.float64).tobytes() for m in msgs)
+    return stamps, np.frombuffer(data, dtype=np.float64).reshape(n, width).copy()
+
+
+def burst_to_blocks(
+    msgs: Sequence[Any], kind: str, axes: Sequence[str] = ("az",)
+) -> tuple[list[tuple[np.ndarray, np.ndarray, tuple[str, ...] | None]], list[str]]:
+    """A burst of messages of one topic -> blocks ``(stamps, values, channel names)``
+    (consecutive messages of equal channel count and names stacked) and one reason per
+    unreadable message."""
+    if kind == "SignalSample" and msgs:
+        names = _names(msgs[0], kind, axes)
+        try:
+            if all(_names(m, kind, axes) == names for m in msgs):
+                t, v = signal_samples_to_arrays(msgs)
+                return [(t, v, names)], []
+        except (ValueError, TypeError, AttributeError):
+            pass  # mixed channel counts or a malformed message: one at a time below
+    blocks, errors = [], []
+    for m in msgs:
+        try:
+            t, v = to_arrays(m, kind, axes)
+        except (ValueError, TypeError, AttributeError) as err:
+            errors.append(str(err))
+            continue
+        blocks.append((t, v, _names(m, kind, axes)))
+    return stack_named(blocks), errors
+
+
+def stack_named(blocks: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndarray, Any]]:
+    """Blocks ``(stamps, values, channel names)``: consecutive ones with the same names and
+    channel count concatenated (arrival order kept)."""
+    runs: list[tuple[Any, list]] = []
+    for t, v, names in blocks:
+        if not runs or runs[-1][0] != names:
+            runs.append((names, []))
+        runs[-1][1].append((t, v))
+    return [(t, v, names) for names, run in runs for t, v in stack_blocks(run)]
 
 
 # ---- signals out (rclpy) ----

@@ -91,6 +91,17 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=0.1, hi=10000.0, unit="Hz"),
     _p("diagnostics_rate", float, 1.0, "Rate of /diagnostics [Hz, wall clock]",
        lo=0.1, hi=100.0, unit="Hz"),
+    _p("backlog_warning", float, 0.5,
+       "Backlog (data received but not yet identified) above which the node warns once and "
+       "reports its estimates degraded [s]; 0 = never", lo=0.0, hi=600.0, unit="s"),
+    _p("max_backlog", float, 5.0,
+       "Backlog above which the oldest waiting data are dropped (counted as *_shed, said in a "
+       "warning) so the estimate stays current [s]; 0 = never drop", lo=0.0, hi=600.0,
+       unit="s"),
+    _p("catch_up", bool, True,
+       "When the estimator falls behind, absorb the older waiting data without realizations so "
+       "that only current estimates are made (the skipped ones are counted as "
+       "estimates_skipped); false = make every estimate however late (as offline does)"),
     _p("residual_spectrum_rate", float, 0.2,
        "Rate of /residual_spectrum [Hz of data time]; 0 = off", lo=0.0, hi=10.0, unit="Hz"),
     # -- mode tracking gates (live) --

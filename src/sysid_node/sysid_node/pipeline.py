@@ -22,14 +22,15 @@ import numpy as np
 
 from sysid_node import params as P
 from sysid_node.decimation import Decimator
+from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
 from sysid_node.records import (
     STATUS_NAMES,
     EstimateRecord,
     ModeRecord,
     SpectrumRecord,
-    stack_blocks,
 )
+from sysid_node.sensor_checks import SensorChecks
 from sysid_node.validation.residuals import residual_spectrum
 
 
@@ -96,6 +97,7 @@ class Pipeline:
         self._next_spectrum_ns: int | None = None
         self._recent = _Recent(0)
         self._samples = 0
+        self._sensors: SensorChecks | None = None
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
         RecursiveDSRA, ModeTracker = self._core
@@ -172,11 +174,39 @@ class Pipeline:
         return dict(self.ingest.counters)
 
     # ---- data in ----
-    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
-        self.ingest.push_output(stamps_ns, values)
+    def push_output(self, stamps_ns: np.ndarray, values: np.ndarray,
+                    names: tuple[str, ...] | None = None) -> None:
+        """A block of output samples; ``names``: the channel names the messages carry."""
+        self._names("output", names)
+        self.ingest.push_output(stamps_ns, values, names)
 
-    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray) -> None:
-        self.ingest.push_input(stamps_ns, values)
+    def push_input(self, stamps_ns: np.ndarray, values: np.ndarray,
+                   names: tuple[str, ...] | None = None) -> None:
+        self._names("input", names)
+        self.ingest.push_input(stamps_ns, values, names)
+
+    def _names(self, stream: str, names: tuple[str, ...] | None) -> None:
+        if names and list(names) != self.channel_names.get(stream):
+            self.set_channel_names(stream, list(names))
+
+    def faults(self) -> list[tuple[int, str]]:
+        """Input-side faults now: (HEALTH_* level, reason) of stuck, dead or clipped
+        channels (sensor_checks.py)."""
+        return self._sensors.faults() if self._sensors is not None else []
+
+    def _check_sensors(self, c: Chunk) -> None:
+        if self._sensors is None or c.reset:
+            self._sensors = SensorChecks(self.sample_rate)
+        self._sensors.add(c.y, c.u)
+
+    def _apply_health(self, records: list[EstimateRecord]) -> None:
+        """Fold the input-side faults into the records' health (worst level wins); a record
+        with a fault is never reported converged."""
+        faults = self.faults()
+        for r in records:
+            r.health, r.health_reason = merge_health(r.health, r.health_reason, faults)
+            if r.health >= HEALTH_FAULT:
+                r.converged = False
 
     def set_channel_names(self, stream: str, names: list[str]) -> None:
         """Names of the channels of ``stream`` ('output' or 'input') as the messages give them;
@@ -191,16 +221,29 @@ class Pipeline:
             return names[k]
         return f"{'y' if stream == 'output' else 'u'}{k}"
 
-    def step(self, flush: bool = False) -> list[EstimateRecord]:
+    def step(self, flush: bool = False, realize_from_ns: int | None = None
+             ) -> list[EstimateRecord]:
         """Process what can be processed; return the records due (usually zero or one).
 
         ``flush``: the data has ended (offline): hand out the samples held for reordering.
+        ``realize_from_ns``: catching up (the node fell behind): samples stamped before it are
+        absorbed by the estimator without realizations or records (the expensive part), so
+        only the newest data make estimates; the skipped records are counted
+        (``estimates_skipped``). None (offline, and live when not behind) skips nothing.
         """
         chunks = self.ingest.pop(flush=flush)
         self._drain_events()
         records: list[EstimateRecord] = []
         for c in chunks:
+            self._check_sensors(c)
+            if realize_from_ns is not None and len(c) and c.stamps_ns[0] < realize_from_ns:
+                cut = int(np.searchsorted(c.stamps_ns, realize_from_ns))
+                self._feed(_slice(c, 0, cut), realize=False)
+                c = _slice(c, cut, len(c))
+                if not len(c):
+                    continue
             records += self._feed(c)
+        self._apply_health(records)
         return records
 
     def _drain_events(self) -> None:
@@ -210,8 +253,9 @@ class Pipeline:
     def _bucket_ns(self) -> int:
         return max(1, round(1e9 / self.values["publish_rate"]))
 
-    def _feed(self, c: Chunk) -> list[EstimateRecord]:
-        """Queue a chunk; feed the estimator up to each publication instant it crosses."""
+    def _feed(self, c: Chunk, realize: bool = True) -> list[EstimateRecord]:
+        """Queue a chunk; feed the estimator up to each publication instant it crosses.
+        ``realize=False``: absorb it without realizations or records (catching up)."""
         ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if c.reset or (self._layout is not None and self._layout != (ny, nu)):
             self._pending.clear()
@@ -239,6 +283,12 @@ class Pipeline:
         bucket = (c.stamps_ns + half) // self._bucket_ns()
         prev = bucket[0] if self._last_bucket is None else self._last_bucket
         cross = np.flatnonzero(np.diff(np.concatenate(([prev], bucket))) != 0)
+        if not realize:
+            self._pending.append(c)
+            self._absorb_only()
+            self._last_bucket = int(bucket[-1])
+            self.ingest.counters["estimates_skipped"] += len(cross)
+            return []
         records = []
         start = 0
         for i in cross:
@@ -268,6 +318,21 @@ class Pipeline:
             u=None if parts[0].u is None else np.concatenate([p.u for p in parts]),
             new_segment=parts[0].new_segment,
         ))
+
+    def _absorb_only(self) -> None:
+        """Feed the held samples without realizing a model (catching up): the realization
+        interval is lifted for the call, and the next realization is due at once after it."""
+        est = self.estimator
+        keep = est.realization_interval
+        est.realization_interval = 1 << 62
+        try:
+            self._flush_pending()
+            if hasattr(est, "flush"):
+                est.flush()
+        finally:
+            est.realization_interval = keep
+            if getattr(est, "_since_realization", 0) >= keep:
+                est._since_realization = keep - 1
 
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
@@ -482,81 +547,6 @@ class _Recent:
         y = np.concatenate(self._y)[-self.n :]
         u = None if self._u[0] is None else np.concatenate(self._u)[-self.n :]
         return y, u
-
-
-def worker_status(pl: Pipeline) -> dict[str, Any]:
-    cost = pl.update_seconds / pl.update_samples if pl.update_samples else math.nan
-    return {
-        "counters": pl.counters,
-        "rates": pl.ingest.rates(),
-        "fs": pl.sample_rate,
-        "id_fs": pl.identification_rate,
-        "mode": pl.ingest.mode,
-        "cost": cost,
-        "lambda": pl.forgetting_factor,
-        "values": dict(pl.values),
-    }
-
-
-def worker_main(values: dict[str, Any], inbox, outbox) -> None:
-    """Body of the node's worker process (multiprocessing, spawn): a :class:`Pipeline` fed
-    with the message blocks the node sends.
-
-    Inbox items: ``("data", [(stream, stamps, values), ...], n_samples)``,
-    ``("params", changes)``, ``("reset", None)``, ``("names", stream, names)``, ``None``
-    (stop). Outbox items:
-    ``(records, log_lines, status, n_samples)``; the first item is ``("ready", error)``.
-    """
-    import queue
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the node stops us, not the terminal
-    lines: list[str] = []
-    try:
-        pl = Pipeline(values, log=lines.append)
-    except Exception as err:
-        outbox.put(("ready", f"{type(err).__name__}: {err}"))
-        return
-    outbox.put(("ready", ""))
-    while True:
-        item = inbox.get()
-        if item is None:
-            break
-        batch = [item]
-        while True:  # take everything already waiting: fewer, larger blocks
-            try:
-                nxt = inbox.get_nowait()
-            except queue.Empty:
-                break
-            if nxt is None:
-                inbox.put(None)
-                break
-            batch.append(nxt)
-        records: list[EstimateRecord] = []
-        n_msgs = 0
-        for kind, payload, *rest in batch:
-            try:
-                if kind == "data":
-                    n_msgs += rest[0]
-                    for stream in ("output", "input"):
-                        push = pl.push_output if stream == "output" else pl.push_input
-                        blocks = [(t, v) for s_, t, v in payload if s_ == stream]
-                        for t, v in stack_blocks(blocks):
-                            push(t, v)
-                    records += pl.step()
-                elif kind == "params":
-                    reason = pl.set_parameters(payload)
-                    if reason:
-                        lines.append(f"parameter change not applied: {reason}")
-                elif kind == "reset":
-                    pl.reset()
-                elif kind == "names":  # ("names", stream, [channel names])
-                    pl.set_channel_names(payload, rest[0])
-            except Exception as err:  # keep running on anything the data throws at us
-                lines.append(f"ERROR processing failed, estimator reset: {err!r}")
-                pl.reset()
-        outbox.put((records, lines[:], worker_status(pl), n_msgs, pl.pop_spectra()))
-        lines.clear()
 
 
 def _model_order(est: Any) -> int:

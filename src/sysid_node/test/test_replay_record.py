@@ -243,6 +243,9 @@ def test_namespaced_record_and_remapped_replay(tmp_path: Path) -> None:
         (["sysid_node.tools.replay", "{tmp}"], "metadata.yaml"),
         (["sysid_node.tools.replay", "{src}", "--topics", "/airspeed"], "available: /block"),
         (["sysid_node.tools.record", "/x", "-o", "{src}"], "already exists"),
+        # -o under a regular file (#13 item 10): says which path is a file
+        (["sysid_node.tools.record", "/x", "-o", "{src}/metadata.yaml/out"],
+         "metadata.yaml is a file, not a directory"),
         (
             ["sysid_node.tools.record", "/x", "--type", "/x=foo_msgs/msg/Bar", "-o", "{tmp}/n"],
             "foo_msgs",

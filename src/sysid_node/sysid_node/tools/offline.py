@@ -29,7 +29,7 @@ import numpy as np
 from sysid_node import msg_convert as mc
 from sysid_node import params as P
 from sysid_node.pipeline import Pipeline
-from sysid_node.records import EstimateRecord, stack_blocks
+from sysid_node.records import EstimateRecord
 from sysid_node.topics import resolve
 
 NODE_NAME = "sysid_node"
@@ -47,29 +47,17 @@ class OfflineError(RuntimeError):
 
 
 def load_params_file(path: Path, node_name: str = NODE_NAME) -> dict[str, Any]:
-    """Parameters for ``node_name`` from a ROS 2 YAML parameter file (``/**`` entries apply to
-    every node, as in ROS); unknown names and invalid values raise OfflineError."""
-    import yaml
+    """Parameters for ``node_name`` from a ROS 2 YAML parameter file, checked as the node checks
+    them at start-up (``params_file``: unknown names and near-miss node names refused with the
+    closest valid name); invalid values raise OfflineError."""
+    from sysid_node import params_file as PF
 
     try:
-        doc = yaml.safe_load(Path(path).read_text()) or {}
-    except OSError as err:
-        raise OfflineError(f"cannot read parameter file {path}: {err.strerror}") from None
-    except yaml.YAMLError as err:
-        line = getattr(getattr(err, "problem_mark", None), "line", None)
-        where = f" (line {line + 1})" if line is not None else ""
-        raise OfflineError(f"parameter file {path} is not valid YAML{where}") from None
-    if not isinstance(doc, dict):
-        raise OfflineError(f"parameter file {path}: expected '{node_name}: ros__parameters:'")
-    values: dict[str, Any] = {}
-    for key in ("/**", "**", node_name, "/" + node_name, "/**/" + node_name):
-        section = doc.get(key)
-        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
-            values.update(section["ros__parameters"])
-    unknown = sorted(k for k in values if k not in P.SPECS and k != "use_sim_time")
-    if unknown:
-        raise OfflineError(f"parameter file {path}: unknown parameter(s) {', '.join(unknown)}")
-    values.pop("use_sim_time", None)
+        values = PF.node_values(PF.read(path), node_name, P.SPECS, path=path)
+    except PF.ParamsFileError as err:
+        raise OfflineError(str(err)) from None
+    for k in PF.ROS_OWN:
+        values.pop(k, None)
     for k, v in values.items():
         if P.SPECS[k].type is float and isinstance(v, int) and not isinstance(v, bool):
             values[k] = float(v)
@@ -163,12 +151,16 @@ def run(
                 f"cannot decode a {conn.msgtype} message on {conn.topic} in {bag}: "
                 f"{' '.join(str(err).split())[:200]}"
             ) from None
-        stamps, vals = mc.to_arrays(msg, kinds[conn.topic], axes)
         stream = stream_of[conn.topic]
+        try:
+            stamps, vals = mc.to_arrays(msg, kinds[conn.topic], axes)
+        except (ValueError, TypeError, AttributeError) as err:  # one bad message: counted
+            pipeline.ingest.reject(stream, 1, "unreadable", f"{stream}: unreadable message: {err}")
+            continue
         names = mc.channel_names(msg, kinds[conn.topic], axes)
         if names != pipeline.channel_names[stream]:
             pipeline.set_channel_names(stream, names)
-        batch.append((stream, stamps, vals))
+        batch.append((stream, stamps, vals, tuple(names) or None))
         n += 1
         if len(batch) >= 64:
             records += _process(pipeline, batch)
@@ -191,10 +183,9 @@ def run(
 def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
     """Feed messages as the node's worker does: per stream, stacked blocks; then one step."""
     for stream in ("output", "input"):
-        blocks = [(t, v) for s, t, v in batch if s == stream]
         push = pipeline.push_output if stream == "output" else pipeline.push_input
-        for t, v in stack_blocks(blocks):
-            push(t, v)
+        for t, v, names in mc.stack_named([b[1:] for b in batch if b[0] == stream]):
+            push(t, v, names)
     records = pipeline.step()
     pipeline.pop_spectra()  # /residual_spectrum is a live view; the offline outputs omit it
     return records

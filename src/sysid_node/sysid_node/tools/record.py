@@ -62,7 +62,14 @@ def run(args: argparse.Namespace) -> int:
         msg_class(args.types[t])  # fail early on an unknown type
     if args.output.exists():
         raise BagError(f"output already exists: {args.output}")
-    args.output.parent.mkdir(parents=True, exist_ok=True)
+    for parent in args.output.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ToolError(f"cannot create {args.output}: {parent} is a file, not a directory")
+    try:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ToolError(f"cannot create the directory {args.output.parent}: "
+                        f"{err.strerror}") from None
 
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy

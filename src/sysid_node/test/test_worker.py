@@ -1,0 +1,120 @@
+"""The node <-> worker hand-off (worker.py), the log summaries (log_throttle.py) and the
+catch-up path of the pipeline, without DDS."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from sysid_node.log_throttle import LogThrottle, kind_of
+from sysid_node.pipeline import Pipeline
+from sysid_node.scenarios.paper import paper_example_data
+from sysid_node.worker import WorkerLink
+
+from sysid_node import params as P
+
+T0 = 1_700_000_000 * 10**9
+FS = 100.0
+
+
+@pytest.fixture(scope="module")
+def paper():
+    t, u, y = paper_example_data(duration_s=12.0, fs=FS, seed=2)
+    return T0 + np.round(t * 1e9).astype(np.int64), u, y
+
+
+def test_log_flood_summarised():
+    lines: list[str] = []
+    now = [0.0]
+    th = LogThrottle(lines.append, period=5.0, clock=lambda: now[0])
+    for k in range(1300):  # one line per dropped message, 13 s
+        now[0] = k * 0.01
+        th.emit(f"output: 1 duplicate stamp(s) dropped at {k}")
+    th.flush(force=True)
+    assert kind_of("a 12 b 3.5e-3") == "a # b #"
+    assert len(lines) <= 4, lines
+    assert sum(int(s.rsplit("(", 1)[1].split()[0]) for s in lines if "like this" in s) \
+        + sum("like this" not in s for s in lines) == 1300
+
+
+def test_catch_up_absorbs_without_estimates_then_tracks(paper):
+    stamps, u, y = paper
+    full, fast = Pipeline({"sample_rate": FS}), Pipeline({"sample_rate": FS})
+    half = len(stamps) // 2
+    rec_full = []
+    for a in range(0, len(stamps), 10):
+        full.push_output(stamps[a:a + 10], y[a:a + 10])
+        full.push_input(stamps[a:a + 10], u[a:a + 10])
+        rec_full += full.step()
+    fast.push_output(stamps[:half], y[:half])
+    fast.push_input(stamps[:half], u[:half])
+    behind = fast.step(realize_from_ns=int(stamps[half - 1]) - 10**8)  # 6 s behind: catch up
+    assert len(behind) <= 2 and fast.counters["estimates_skipped"] >= 50
+    rec_fast = []
+    for a in range(half, len(stamps), 10):
+        fast.push_output(stamps[a:a + 10], y[a:a + 10])
+        fast.push_input(stamps[a:a + 10], u[a:a + 10])
+        rec_fast += fast.step()
+    # the same samples were absorbed: the estimate at the end agrees with the full run
+    assert rec_fast[-1].samples_used == rec_full[-1].samples_used
+    for f in (2.0, 4.0):
+        assert any(abs(m.frequency_hz - f) < 0.02 * f for m in rec_fast[-1].modes)
+
+
+def _link(**values):
+    v = {**P.defaults(), "sample_rate": FS, **values}
+    lines: list[tuple[str, str]] = []
+    link = WorkerLink(v, lambda level, text: lines.append((level, text)))
+    assert link.start() == ""
+    return link, lines
+
+
+def _drain(link: WorkerLink, until, timeout: float = 60.0) -> list:
+    records: list = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and not until(records):
+        rep = link.receive(0.05)
+        if rep is not None:
+            records += rep.records
+    return records
+
+
+def test_worker_link_round_trip_and_dead_worker_restarted(paper):
+    stamps, u, y = paper
+    link, _ = _link()
+    try:
+        for a in range(0, 400, 20):
+            link.submit("output", [(stamps[a:a + 20], y[a:a + 20])], 1)
+            link.submit("input", [(stamps[a:a + 20], u[a:a + 20])], 1)
+        recs = _drain(link, lambda r: r and r[-1].stamp_ns >= stamps[350])
+        assert recs and recs[-1].stamp_ns >= stamps[350]
+        assert link.status["counters"]["output_accepted"] == 400
+        assert link.backlog_s() == pytest.approx(0.0, abs=0.5)
+        link._proc.kill()  # a dead worker: detected and replaced
+        link._proc.join(5)
+        assert not link.alive
+        assert link.restart() == "" and link.alive
+        assert link.counters["worker_restarts"] == 1
+        link.submit("output", [(stamps[400:800], y[400:800])], 1)
+        link.submit("input", [(stamps[400:800], u[400:800])], 1)
+        recs = _drain(link, lambda r: r and r[-1].stamp_ns >= stamps[750])
+        assert recs[-1].stamp_ns >= stamps[750]
+    finally:
+        link.stop()
+
+
+def test_oldest_data_shed_when_too_far_behind(paper):
+    stamps, u, y = paper
+    link, lines = _link(max_backlog=0.2)
+    try:
+        link._in_flight = {-1: time.monotonic(), -2: time.monotonic()}  # no credit: held
+        link.submit("output", [(stamps[:100], y[:100])], 10)
+        time.sleep(0.3)
+        link.submit("output", [(stamps[100:200], y[100:200])], 10)  # 1 s of data newer
+        link._in_flight = {}
+        link._send_waiting()
+        assert link.counters["output_shed"] == 10 and link.counters["output_shed_samples"] == 100
+        assert any(level == "warn" and "behind" in text for level, text in lines)
+    finally:
+        link.stop()
