@@ -74,14 +74,14 @@ KIND_NOTES = {"structural": " (structural: rebuilds the bank)", "read_only": " (
 def estimate_input(msg: Any, received: float = math.nan) -> EstimateInput:
     """sysid_msgs/ModalEstimate -> the policy's plain input; ``received``: data time [s] of the
     signal when it arrived."""
-    modes = [
-        ModeInput(int(m.id), STATUS_NAMES.get(int(m.status), "tentative"), float(m.frequency),
-                  float(m.frequency_std), float(m.damping_ratio), float(m.damping_ratio_std),
-                  float(m.amplitude))
-        for m in msg.modes
-    ]
-    return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged), modes,
-                         int(msg.health), str(msg.health_reason), received)
+    def convert(ms) -> list[ModeInput]:
+        return [ModeInput(int(m.id), STATUS_NAMES.get(int(m.status), "tentative"),
+                          float(m.frequency), float(m.frequency_std), float(m.damping_ratio),
+                          float(m.damping_ratio_std), float(m.amplitude)) for m in ms]
+
+    return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged),
+                         convert(msg.modes), int(msg.health), str(msg.health_reason), received,
+                         convert(msg.predicted_modes))
 
 
 def _msg_class(kind: str):

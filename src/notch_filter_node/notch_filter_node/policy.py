@@ -38,7 +38,15 @@ Bank states (sysid_msgs/NotchBank), in order of degradation:
 - HOLDING: the estimate is late, degraded (``health`` DEGRADED, or not converged) or the
   estimator reports a FAULT (for at most ``hold_time``): the notches that were tracking keep their
   centre and widen with the estimate's age as above; a degraded estimate never retunes them.
-- PREDICTED: notches follow an LPV model's prediction (not produced by this policy yet).
+- PREDICTED: the identification is not to be trusted (it would HOLD or FALL BACK: late,
+  degraded - e.g. starved of excitation -, unconverged or faulty), but the estimate carries the
+  modes an LPV model predicts from the scheduling signal (``EstimateInput.predicted``,
+  sysid_msgs/ModalEstimate.predicted_modes) and it is fresh (age <= ``stale_timeout``): the
+  notches follow the predicted modes (notch state PREDICTED) with widths from their frequency
+  stds, drift and age like tracked ones; a notch that followed an identified mode hands over to
+  the predicted mode next to it (no fade out and in). Back to TRACKING as soon as the
+  identification is good again (the notches hand back the same way). A better fallback than a
+  preset notch: the prediction moves with the operating point.
 - FALLBACK: nothing was tracking and the estimate is late (``stale_timeout``), or the estimate is
   older than ``fallback_timeout``, or a FAULT lasted ``hold_time``, or there was never a usable
   estimate: the configured static notch fades in over ``fallback_ramp`` (full depth at the
@@ -85,6 +93,11 @@ NARROW_FRACTION = 0.6
 #: a bank that fell back on age holds again once it is younger than this fraction of the limit.
 RECOVER_FRACTION = 0.5
 AGED_OUT = " (aged out)"
+#: Predicted mode k is followed as mode PREDICTED_ID_BASE + k (no clash with tracker ids).
+PREDICTED_ID_BASE = 1_000_000
+#: A notch hands over between an identified and a predicted mode within this relative distance
+#: (or sigma_k combined stds, whichever is larger).
+HANDOVER_GATE = 0.02
 #: A design looks ahead by this fraction of the time since its estimate arrived (at least
 #: ``design_horizon``), so a long gap is re-designed a few times, not at every block.
 GAP_GROWTH = 0.5
@@ -115,6 +128,7 @@ class EstimateInput:
     health: int = HEALTH_OK
     health_reason: str = ""
     received: float = math.nan
+    predicted: Sequence[ModeInput] = ()  # modes an LPV model predicts at the estimate's stamp
 
 
 @dataclass(frozen=True)
@@ -273,6 +287,7 @@ class RetuningPolicy:
         fb.depth = fb.target_depth = config.fallback_depth  # no estimate yet: fallback at once
         self.estimate: EstimateInput | None = None  # latest accepted, any health
         self.good: EstimateInput | None = None  # latest converged and healthy
+        self.predicted: EstimateInput | None = None  # latest LPV prediction, as an estimate
         self.now = math.nan
         self.bank_state = BANK_FALLBACK
         self.reason = "no estimate yet"
@@ -367,8 +382,14 @@ class RetuningPolicy:
         if est.health == HEALTH_OK and est.converged:
             self._remember(est)
             self.good = est
+        self.predicted = self._prediction(est)
+        if self.predicted is not None:
+            self._remember(self.predicted)  # the predicted modes' drift, like tracked ones
         now = self.now if math.isfinite(self.now) else est.stamp
         self._update_state(now)
+        if self.bank_state == BANK_PREDICTED and self.predicted is not None:
+            self._match(self.predicted, PREDICTED)
+            return ""
         if self.good is not est:
             return ""  # degraded, unconverged or fault: hold, never retune on it
         age = self.age(now)
@@ -394,6 +415,46 @@ class RetuningPolicy:
                 self._history[mid] = h
             else:
                 del self._history[mid]
+
+    @staticmethod
+    def _prediction(est: EstimateInput) -> EstimateInput | None:
+        """The estimate's LPV prediction as an estimate of its own (ids offset), or None."""
+        if not est.predicted:
+            return None
+        modes = [replace(m, id=PREDICTED_ID_BASE + int(m.id), status="tracked")
+                 for m in est.predicted]
+        return EstimateInput(est.stamp, True, modes, HEALTH_OK, "", est.received)
+
+    def _prediction_fresh(self, now: float) -> bool:
+        p = self.predicted
+        if p is None or not self._usable(p):
+            return False
+        age = now - p.stamp
+        if math.isfinite(p.received):
+            age = max(age, now - p.received)
+        return age <= self.config.stale_timeout
+
+    def _handover(self, modes: dict[int, ModeInput]) -> None:
+        """A notch that follows another mode (identified <-> predicted) within the gate of one
+        of ``modes`` without a notch of its own takes that mode over."""
+        c = self.config
+        active = [s for s in self.slots[:-1] if s.depth > 0 and s.state in (TRACKING, HOLDING,
+                                                                             PREDICTED)]
+        taken = {s.mode_id for s in active}
+        for mid, m in modes.items():
+            if mid in taken:
+                continue
+            free = [s for s in active if s.mode_id not in modes]
+            if not free:
+                return
+            near = min(free, key=lambda s: abs(s.center - m.frequency_hz))
+            sf = math.hypot(*(x if math.isfinite(x) else 0.0
+                              for x in (m.frequency_std_hz, near.f_std)))
+            if abs(near.center - m.frequency_hz) <= max(HANDOVER_GATE * m.frequency_hz,
+                                                       c.sigma_k * sf):
+                near.mode_id = mid
+                taken.add(mid)
+                self.revision += 1
 
     def mode_model(self, m: ModeInput) -> SM.ModeModel:
         """The mode's model from its estimates over ``drift_window`` (:mod:`smoothing`); the
@@ -442,11 +503,12 @@ class RetuningPolicy:
         return kept
 
     def _match(self, est: EstimateInput, following: int | None = None) -> None:
-        """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING
-        or HOLDING), by default the bank's."""
+        """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING,
+        HOLDING or PREDICTED), by default the bank's."""
         c = self.config
         adaptive = self.slots[:-1]
         usable = self._usable(est)
+        self._handover(usable)  # identified <-> predicted: the notch next to a mode takes it
         # modes that already have a notch first, then the largest (unknown amplitude last)
         held = {s.mode_id for s in adaptive if s.state != DISABLED or s.depth > 0}
         usable = dict(sorted(usable.items(), key=lambda kv: (
@@ -474,7 +536,7 @@ class RetuningPolicy:
             if slot.state != following or slot.late != (following == HOLDING):
                 slot.state = following
                 slot.late = following == HOLDING
-                slot.hold_since = math.nan if following == TRACKING else est.stamp
+                slot.hold_since = est.stamp if following == HOLDING else math.nan
                 self.revision += 1
             slot.target_depth = c.depth
             sf = mm.frequency_std if math.isfinite(mm.frequency_std) else 0.0
@@ -485,7 +547,7 @@ class RetuningPolicy:
             self._set_model(slot, mm, est)
             touched.append(slot)
         for slot in adaptive:
-            if slot.mode_id not in usable and (slot.state == TRACKING
+            if slot.mode_id not in usable and (slot.state in (TRACKING, PREDICTED)
                                                or (slot.state == HOLDING and slot.late)):
                 self._hold(slot, est.stamp)
         self._redesign(touched)
@@ -543,7 +605,7 @@ class RetuningPolicy:
 
     def _budgeted(self) -> list[Slot]:
         return [s for s in self.slots[:-1]
-                if s.state == TRACKING or (s.state == HOLDING and s.late)]
+                if s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late)]
 
     def _needs_design(self, s: Slot, age: float) -> bool:
         lo, hi, zeta, centre, zeta_c = s.design
@@ -670,10 +732,19 @@ class RetuningPolicy:
 
     # ---- bank state ----
     def _held(self) -> bool:
-        return any(s.state == TRACKING or (s.state == HOLDING and s.late)
+        return any(s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late)
                    for s in self.slots[:-1])
 
     def _evaluate(self, now: float) -> tuple[int, str]:
+        """The identification's verdict, replaced by PREDICTED when it would hold or fall back
+        and a fresh LPV prediction is at hand."""
+        new, reason = self._evaluate_identification(now)
+        if (new in (BANK_HOLDING, BANK_FALLBACK) and self.estimate is not None
+                and self._prediction_fresh(now)):
+            return BANK_PREDICTED, f"{reason or 'identification not usable'}: LPV prediction"
+        return new, reason
+
+    def _evaluate_identification(self, now: float) -> tuple[int, str]:
         c = self.config
         latest, good = self.estimate, self.good
         if latest is None:
@@ -716,16 +787,18 @@ class RetuningPolicy:
         self.revision += 1
         if new == BANK_HOLDING:
             for s in self.slots[:-1]:
-                if s.state == TRACKING:
+                if s.state in (TRACKING, PREDICTED):
                     s.state, s.late, s.hold_since = HOLDING, True, now
         elif new == BANK_FALLBACK:
             for s in self.slots[:-1]:
-                if s.state == TRACKING or (s.state == HOLDING and s.late):
+                if s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late):
                     s.state, s.late, s.hold_since = HOLDING, False, now
                     s.target_depth = 0.0  # fade out now: the fallback takes over
             self._apply_budget()
         elif new == BANK_TRACKING and self.good is not None:
             self._match(self.good)
+        elif new == BANK_PREDICTED and self.predicted is not None:
+            self._match(self.predicted, PREDICTED)
 
     # ---- time ----
     def advance(self, now: float, dt: float) -> S.SectionParams:
@@ -758,7 +831,8 @@ class RetuningPolicy:
                 s.mode_id = 0
                 s.late = False
                 self.revision += 1
-        if self.bank_state in (BANK_TRACKING, BANK_HOLDING) and self._redesign(self._budgeted()):
+        if (self.bank_state in (BANK_TRACKING, BANK_HOLDING, BANK_PREDICTED)
+                and self._redesign(self._budgeted())):
             self._apply_budget()  # widened with the age
         dt = max(float(dt), 0.0)
         lo, hi = c.freq_min, self.fmax
@@ -804,7 +878,8 @@ class RetuningPolicy:
         )
 
     def _active(self) -> list[Slot]:
-        return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING)]
+        return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING,
+                                                                     PREDICTED)]
 
     def status(self) -> PolicyStatus:
         """Active notches in cascade order, bank state, estimate age (cheap: every block)."""
