@@ -30,6 +30,7 @@ from sysid_node.records import (
     ModeRecord,
     SpectrumRecord,
 )
+from sysid_node.scheduling import predictor_from
 from sysid_node.sensor_checks import SensorChecks
 from sysid_node.validation.residuals import residual_spectrum
 
@@ -74,6 +75,8 @@ class Pipeline:
         #: channel names per stream, from the signal messages (for ResidualSpectrum.channel_name)
         self.channel_names: dict[str, list[str]] = {"output": [], "input": []}
         self._build_ingest()
+        #: online LPV (scheduling_topic, lpv_model): None when off
+        self.scheduling = predictor_from(self.values)
 
     # ---- construction ----
     def _build_ingest(self) -> None:
@@ -244,7 +247,24 @@ class Pipeline:
                     continue
             records += self._feed(c)
         self._apply_health(records)
+        self._predict(records)
         return records
+
+    # ---- online LPV (scheduling_topic, lpv_model; scheduling.py) ----
+    def push_scheduling(self, stamps_ns: np.ndarray, values: np.ndarray,
+                        names: tuple[str, ...] | None = None) -> None:
+        """A block of scheduling-signal samples (ignored when scheduling_topic is off)."""
+        if self.scheduling is not None:
+            self.scheduling.push(stamps_ns, values, names)
+
+    def _predict(self, records: list[EstimateRecord]) -> None:
+        """Each record's scheduling value and LPV-predicted modes at its stamp."""
+        if self.scheduling is not None:
+            self.scheduling.annotate(records)
+
+    def scheduling_status(self) -> dict[str, Any]:
+        """/diagnostics keys of the online LPV ({} when off)."""
+        return self.scheduling.status() if self.scheduling is not None else {}
 
     def _drain_events(self) -> None:
         while self.ingest.events:
