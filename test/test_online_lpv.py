@@ -67,7 +67,8 @@ def _modes(ms) -> list[ModeInput]:
 
 
 def bank_run(run, records, with_model: bool):
-    """(t, true moving mode's peak reduction [dB], bank state) at every filter block."""
+    """(t, true moving mode's peak reduction [dB], bank state, the bank's phase lag at the
+    crossover [deg] as /diagnostics publishes it) at every filter block."""
     from notch_filter_node import resonance as R
 
     cfg = PolicyConfig(peak_reduction=REQUIRED, fallback_center=35.0, fallback_bandwidth=6.0)
@@ -91,7 +92,7 @@ def bank_run(run, records, with_model: bool):
         theta = float(np.interp(t_last, run.t, run.theta))
         f, z = min(csm_at(theta).modes(), key=lambda m: abs(m[0] - theta))
         pr = R.peak_reduction_db(np.array([f]), np.array([z]), c, zp, zz, run.fs)[0]
-        rows.append((t_last, pr, flt.status().bank_state))
+        rows.append((t_last, pr, flt.status().bank_state, flt.phase_lag()))
     return np.array(rows)
 
 
@@ -125,7 +126,7 @@ def test_starved_identification_notch_follows_the_lpv_prediction(starved):
     out = {}
     for with_model in (True, False):
         rows = bank_run(run, records, with_model)
-        t, pr, state = rows.T
+        t, pr, state, lag = rows.T
         s = t >= starve
         out[with_model] = (pr[s], state[s])
         print(f"\n{'LPV model' if with_model else 'no model (preset fallback)'}: starved "
@@ -135,7 +136,8 @@ def test_starved_identification_notch_follows_the_lpv_prediction(starved):
               f"{np.mean(pr[s] >= REQUIRED):.1%} of blocks; bank PREDICTED "
               f"{np.mean(state[s] == BANK_PREDICTED):.0%}, HOLDING "
               f"{np.mean(state[s] == BANK_HOLDING):.0%}, FALLBACK "
-              f"{np.mean(state[s] == BANK_FALLBACK):.0%}; identified part (5 s - starve) min "
+              f"{np.mean(state[s] == BANK_FALLBACK):.0%}; phase lag at the crossover median "
+              f"{np.median(lag[s]):.2f} deg; identified part (5 s - starve) min "
               f"{pr[(t >= 5.0) & ~s].min():.1f} dB")
     pr, state = out[True]
     assert pr.min() >= REQUIRED  # throughout the starved part
