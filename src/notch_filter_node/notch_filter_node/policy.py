@@ -54,10 +54,12 @@ Bank states (sysid_msgs/NotchBank), in order of degradation:
 
 The age of an estimate is the larger of ``now - stamp`` and ``now - received`` (data time at
 arrival), so a stamp from the future cannot keep an estimate fresh; a stamp more than
-``future_tolerance`` ahead of the data is rejected (and counted). A lost mode's notch holds for
-``hold_time``, then fades its depth out over ``fade_time`` and frees its slot. Every parameter
-moves at a bounded rate per second of data (centre and bandwidth ``slew_rate``, depth
-``depth / fade_time``), whatever the block size.
+``future_tolerance`` ahead of the data is rejected (and counted). One stamped ahead by less
+arrives while this node's input is behind (queued on a busy machine): it counts from its stamp,
+so the node's own backlog does not age it (a wrong clock gains at most ``future_tolerance``).
+A lost mode's notch holds for ``hold_time``, then fades its depth out over ``fade_time`` and
+frees its slot. Every parameter moves at a bounded rate per second of data (centre and
+bandwidth ``slew_rate``, depth ``depth / fade_time``), whatever the block size.
 """
 
 from __future__ import annotations
@@ -89,6 +91,9 @@ BANDWIDTH_HYSTERESIS = 0.1
 SHORTFALL_SLACK_DB = 1.0
 #: A box is re-designed narrower once it has shrunk below this fraction of the designed one.
 NARROW_FRACTION = 0.6
+#: The designs are checked against the growing estimate age at most this often [s of data]
+#: (a design looks ``design_horizon`` ahead, so a check per block would only cost time).
+DESIGN_CHECK_S = 0.05
 #: A late bank tracks again once the estimate is younger than this fraction of stale_timeout;
 #: a bank that fell back on age holds again once it is younger than this fraction of the limit.
 RECOVER_FRACTION = 0.5
@@ -300,6 +305,8 @@ class RetuningPolicy:
         self._fault_since = math.nan
         self._history: dict[int, list[tuple[float, ...]]] = {}  # (t, f, f_std, zeta, zeta_std)
         self._params: S.SectionParams | None = None  # returned again while nothing moves
+        self._budget_key: tuple = ()
+        self._checked = -math.inf  # data time the designs were last checked against the age
 
     # ---- configuration ----
     @property
@@ -361,6 +368,11 @@ class RetuningPolicy:
         if math.isfinite(ref) and est.stamp > ref + c.future_tolerance:
             self._count("future_stamp")
             return f"estimate stamped {est.stamp - ref:.3g} s ahead of the data: rejected"
+        if math.isfinite(est.received) and est.stamp > est.received:
+            # ahead of the data when it arrived (within the tolerance): this node's input is
+            # behind (a queue on a loaded machine), not the estimate; it is no older than its
+            # stamp, so its arrival counts from there (else the node's own backlog would age it)
+            est = replace(est, received=est.stamp)
         cur = self.estimate
         if cur is not None and est.stamp == cur.stamp:
             self._count("duplicate_estimate")
@@ -687,6 +699,11 @@ class RetuningPolicy:
         common narrowing factor), or report it exceeded (``budget_priority``)."""
         c = self.config
         tr = self._budgeted()
+        key = (c, self.fs,
+               tuple((id(s), s.target_center, s.desired_bandwidth, s.design) for s in tr))
+        if key == self._budget_key:
+            return  # nothing it depends on changed
+        self._budget_key = key
         self.budget_limited = False
         if not tr:
             self.lag_deg = 0.0
@@ -721,7 +738,7 @@ class RetuningPolicy:
                 np.array([s.design[1] for s in narrowed]),
                 np.array([s.design[2] for s in narrowed]),
                 tc[:, None], zp[:, None], zz[:, None], self.fs,
-                zeta_c=np.array([s.design[4] for s in narrowed]))
+                zeta_c=np.array([s.design[4] for s in narrowed]))  # (grid: up to the depth)
             for s, w in zip(narrowed, worst, strict=True):
                 s.guaranteed = float(w)
                 if w < c.peak_reduction - R.DECISION_MARGIN_DB:
@@ -832,8 +849,10 @@ class RetuningPolicy:
                 s.late = False
                 self.revision += 1
         if (self.bank_state in (BANK_TRACKING, BANK_HOLDING, BANK_PREDICTED)
-                and self._redesign(self._budgeted())):
-            self._apply_budget()  # widened with the age
+                and not 0.0 <= now - self._checked < DESIGN_CHECK_S):  # (or time went back)
+            self._checked = now
+            if self._redesign(self._budgeted()):
+                self._apply_budget()  # widened with the age
         dt = max(float(dt), 0.0)
         lo, hi = c.freq_min, self.fmax
         last = len(self.slots) - 1
