@@ -103,7 +103,8 @@ def test_bag_through_notch_filter_launch_then_sigint_to_the_group(tmp_path):
     )
     assert replay.returncode == 0, replay.stderr
     _wait_for(log, [r"notch bank ready"], proc, timeout=30)
-    _assert_clean(log.read_text(), _interrupt(proc), ["sysid_node", "notch_filter_node"])
+    code = _interrupt(proc)  # first: the log must hold what happened after the SIGINT
+    _assert_clean(log.read_text(), code, ["sysid_node", "notch_filter_node"])
 
 
 @pytest.mark.dds

@@ -74,14 +74,14 @@ KIND_NOTES = {"structural": " (structural: rebuilds the bank)", "read_only": " (
 def estimate_input(msg: Any, received: float = math.nan) -> EstimateInput:
     """sysid_msgs/ModalEstimate -> the policy's plain input; ``received``: data time [s] of the
     signal when it arrived."""
-    modes = [
-        ModeInput(int(m.id), STATUS_NAMES.get(int(m.status), "tentative"), float(m.frequency),
-                  float(m.frequency_std), float(m.damping_ratio), float(m.damping_ratio_std),
-                  float(m.amplitude))
-        for m in msg.modes
-    ]
-    return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged), modes,
-                         int(msg.health), str(msg.health_reason), received)
+    def convert(ms) -> list[ModeInput]:
+        return [ModeInput(int(m.id), STATUS_NAMES.get(int(m.status), "tentative"),
+                          float(m.frequency), float(m.frequency_std), float(m.damping_ratio),
+                          float(m.damping_ratio_std), float(m.amplitude)) for m in ms]
+
+    return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged),
+                         convert(msg.modes), int(msg.health), str(msg.health_reason), received,
+                         convert(msg.predicted_modes))
 
 
 def _msg_class(kind: str):
@@ -366,10 +366,14 @@ class NotchFilterNode(Node):
         t_last = float(stamps[-1]) * 1e-9
         self._last_stamp_s = t_last
         known = mapping.index >= 0
-        self._bridge(int(stamps[0]), x, mapping)
+        fill = self._bridge(int(stamps[0]), x, mapping)
         if known.all():
             same = np.array_equal(mapping.index, np.arange(self.filter.channels))
-            y = self.filter.process(x, t_last, None if same else mapping.index)
+            if fill is not None:  # lost samples and this message in one pass; theirs dropped
+                y = self.filter.process(np.vstack([fill, x]), t_last, None if same else
+                                        mapping.index)[fill.shape[0]:]
+            else:
+                y = self.filter.process(x, t_last, None if same else mapping.index)
         else:
             y = x.copy()
             if known.any():
@@ -388,13 +392,15 @@ class NotchFilterNode(Node):
         self._drain_transitions()
         self._maybe_publish_bank()
 
-    def _bridge(self, first_ns: int, x: np.ndarray, mapping: ST.Mapping) -> None:
-        """Samples lost before this message: run the filter over a straight line in their place
-        (not published), so its memory keeps the stream's time base; counted."""
+    def _bridge(self, first_ns: int, x: np.ndarray, mapping: ST.Mapping) -> np.ndarray | None:
+        """Samples lost before this message (counted): the rows of a straight line in their
+        place, in the message's channel order, for the filter to run through before the message
+        (not published), so its memory keeps the stream's time base; None when there is
+        nothing to bridge."""
         fs = self.filter.fs
         missing = ST.missing_samples(self._prev_ns, first_ns, fs)
         if not missing:
-            return
+            return None
         self._missing += missing
         self._event("gap", f"{missing} sample(s) missing before {first_ns * 1e-9:.6f} s: "
                     "filter memory bridged" if missing <= BRIDGE_S * fs else
@@ -403,11 +409,8 @@ class NotchFilterNode(Node):
         full = mapping.index.size == self.filter.channels and (mapping.index >= 0).all()
         if missing > BRIDGE_S * fs or not full or self._prev_row is None or \
                 self._prev_row.size != self.filter.channels:
-            return
-        first = np.empty(self.filter.channels)
-        first[mapping.index] = x[0]
-        self.filter.process(ST.bridge(self._prev_row, first, missing),
-                            first_ns * 1e-9 - 1.0 / fs)
+            return None
+        return ST.bridge(self._prev_row[mapping.index], x[0], missing)
 
     def _map_channels(self, msg: Any, channels: int) -> ST.Mapping:
         names = list(getattr(msg, "channel_names", []))
@@ -582,6 +585,11 @@ def main(args: list[str] | None = None) -> int:
     except StartupError as err:
         print(f"notch_filter_node: error: {err}", file=sys.stderr)
         code = 1
+    except Exception:
+        if rclpy.ok():
+            raise
+        # stopped (SIGINT/SIGTERM) while a message was being taken: rclpy's shutdown raced the
+        # take (RuntimeError from take_message with a backlog queued); a requested stop
     finally:
         if node is not None:
             node.destroy_node()

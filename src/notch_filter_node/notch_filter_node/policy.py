@@ -38,7 +38,15 @@ Bank states (sysid_msgs/NotchBank), in order of degradation:
 - HOLDING: the estimate is late, degraded (``health`` DEGRADED, or not converged) or the
   estimator reports a FAULT (for at most ``hold_time``): the notches that were tracking keep their
   centre and widen with the estimate's age as above; a degraded estimate never retunes them.
-- PREDICTED: notches follow an LPV model's prediction (not produced by this policy yet).
+- PREDICTED: the identification is not to be trusted (it would HOLD or FALL BACK: late,
+  degraded - e.g. starved of excitation -, unconverged or faulty), but the estimate carries the
+  modes an LPV model predicts from the scheduling signal (``EstimateInput.predicted``,
+  sysid_msgs/ModalEstimate.predicted_modes) and it is fresh (age <= ``stale_timeout``): the
+  notches follow the predicted modes (notch state PREDICTED) with widths from their frequency
+  stds, drift and age like tracked ones; a notch that followed an identified mode hands over to
+  the predicted mode next to it (no fade out and in). Back to TRACKING as soon as the
+  identification is good again (the notches hand back the same way). A better fallback than a
+  preset notch: the prediction moves with the operating point.
 - FALLBACK: nothing was tracking and the estimate is late (``stale_timeout``), or the estimate is
   older than ``fallback_timeout``, or a FAULT lasted ``hold_time``, or there was never a usable
   estimate: the configured static notch fades in over ``fallback_ramp`` (full depth at the
@@ -46,10 +54,12 @@ Bank states (sysid_msgs/NotchBank), in order of degradation:
 
 The age of an estimate is the larger of ``now - stamp`` and ``now - received`` (data time at
 arrival), so a stamp from the future cannot keep an estimate fresh; a stamp more than
-``future_tolerance`` ahead of the data is rejected (and counted). A lost mode's notch holds for
-``hold_time``, then fades its depth out over ``fade_time`` and frees its slot. Every parameter
-moves at a bounded rate per second of data (centre and bandwidth ``slew_rate``, depth
-``depth / fade_time``), whatever the block size.
+``future_tolerance`` ahead of the data is rejected (and counted). One stamped ahead by less
+arrives while this node's input is behind (queued on a busy machine): it counts from its stamp,
+so the node's own backlog does not age it (a wrong clock gains at most ``future_tolerance``).
+A lost mode's notch holds for ``hold_time``, then fades its depth out over ``fade_time`` and
+frees its slot. Every parameter moves at a bounded rate per second of data (centre and
+bandwidth ``slew_rate``, depth ``depth / fade_time``), whatever the block size.
 """
 
 from __future__ import annotations
@@ -81,10 +91,18 @@ BANDWIDTH_HYSTERESIS = 0.1
 SHORTFALL_SLACK_DB = 1.0
 #: A box is re-designed narrower once it has shrunk below this fraction of the designed one.
 NARROW_FRACTION = 0.6
+#: The designs are checked against the growing estimate age at most this often [s of data]
+#: (a design looks ``design_horizon`` ahead, so a check per block would only cost time).
+DESIGN_CHECK_S = 0.05
 #: A late bank tracks again once the estimate is younger than this fraction of stale_timeout;
 #: a bank that fell back on age holds again once it is younger than this fraction of the limit.
 RECOVER_FRACTION = 0.5
 AGED_OUT = " (aged out)"
+#: Predicted mode k is followed as mode PREDICTED_ID_BASE + k (no clash with tracker ids).
+PREDICTED_ID_BASE = 1_000_000
+#: A notch hands over between an identified and a predicted mode within this relative distance
+#: (or sigma_k combined stds, whichever is larger).
+HANDOVER_GATE = 0.02
 #: A design looks ahead by this fraction of the time since its estimate arrived (at least
 #: ``design_horizon``), so a long gap is re-designed a few times, not at every block.
 GAP_GROWTH = 0.5
@@ -115,6 +133,7 @@ class EstimateInput:
     health: int = HEALTH_OK
     health_reason: str = ""
     received: float = math.nan
+    predicted: Sequence[ModeInput] = ()  # modes an LPV model predicts at the estimate's stamp
 
 
 @dataclass(frozen=True)
@@ -273,6 +292,7 @@ class RetuningPolicy:
         fb.depth = fb.target_depth = config.fallback_depth  # no estimate yet: fallback at once
         self.estimate: EstimateInput | None = None  # latest accepted, any health
         self.good: EstimateInput | None = None  # latest converged and healthy
+        self.predicted: EstimateInput | None = None  # latest LPV prediction, as an estimate
         self.now = math.nan
         self.bank_state = BANK_FALLBACK
         self.reason = "no estimate yet"
@@ -285,6 +305,8 @@ class RetuningPolicy:
         self._fault_since = math.nan
         self._history: dict[int, list[tuple[float, ...]]] = {}  # (t, f, f_std, zeta, zeta_std)
         self._params: S.SectionParams | None = None  # returned again while nothing moves
+        self._budget_key: tuple = ()
+        self._checked = -math.inf  # data time the designs were last checked against the age
 
     # ---- configuration ----
     @property
@@ -346,6 +368,11 @@ class RetuningPolicy:
         if math.isfinite(ref) and est.stamp > ref + c.future_tolerance:
             self._count("future_stamp")
             return f"estimate stamped {est.stamp - ref:.3g} s ahead of the data: rejected"
+        if math.isfinite(est.received) and est.stamp > est.received:
+            # ahead of the data when it arrived (within the tolerance): this node's input is
+            # behind (a queue on a loaded machine), not the estimate; it is no older than its
+            # stamp, so its arrival counts from there (else the node's own backlog would age it)
+            est = replace(est, received=est.stamp)
         cur = self.estimate
         if cur is not None and est.stamp == cur.stamp:
             self._count("duplicate_estimate")
@@ -367,8 +394,14 @@ class RetuningPolicy:
         if est.health == HEALTH_OK and est.converged:
             self._remember(est)
             self.good = est
+        self.predicted = self._prediction(est)
+        if self.predicted is not None:
+            self._remember(self.predicted)  # the predicted modes' drift, like tracked ones
         now = self.now if math.isfinite(self.now) else est.stamp
         self._update_state(now)
+        if self.bank_state == BANK_PREDICTED and self.predicted is not None:
+            self._match(self.predicted, PREDICTED)
+            return ""
         if self.good is not est:
             return ""  # degraded, unconverged or fault: hold, never retune on it
         age = self.age(now)
@@ -394,6 +427,46 @@ class RetuningPolicy:
                 self._history[mid] = h
             else:
                 del self._history[mid]
+
+    @staticmethod
+    def _prediction(est: EstimateInput) -> EstimateInput | None:
+        """The estimate's LPV prediction as an estimate of its own (ids offset), or None."""
+        if not est.predicted:
+            return None
+        modes = [replace(m, id=PREDICTED_ID_BASE + int(m.id), status="tracked")
+                 for m in est.predicted]
+        return EstimateInput(est.stamp, True, modes, HEALTH_OK, "", est.received)
+
+    def _prediction_fresh(self, now: float) -> bool:
+        p = self.predicted
+        if p is None or not self._usable(p):
+            return False
+        age = now - p.stamp
+        if math.isfinite(p.received):
+            age = max(age, now - p.received)
+        return age <= self.config.stale_timeout
+
+    def _handover(self, modes: dict[int, ModeInput]) -> None:
+        """A notch that follows another mode (identified <-> predicted) within the gate of one
+        of ``modes`` without a notch of its own takes that mode over."""
+        c = self.config
+        active = [s for s in self.slots[:-1] if s.depth > 0 and s.state in (TRACKING, HOLDING,
+                                                                             PREDICTED)]
+        taken = {s.mode_id for s in active}
+        for mid, m in modes.items():
+            if mid in taken:
+                continue
+            free = [s for s in active if s.mode_id not in modes]
+            if not free:
+                return
+            near = min(free, key=lambda s: abs(s.center - m.frequency_hz))
+            sf = math.hypot(*(x if math.isfinite(x) else 0.0
+                              for x in (m.frequency_std_hz, near.f_std)))
+            if abs(near.center - m.frequency_hz) <= max(HANDOVER_GATE * m.frequency_hz,
+                                                       c.sigma_k * sf):
+                near.mode_id = mid
+                taken.add(mid)
+                self.revision += 1
 
     def mode_model(self, m: ModeInput) -> SM.ModeModel:
         """The mode's model from its estimates over ``drift_window`` (:mod:`smoothing`); the
@@ -442,11 +515,12 @@ class RetuningPolicy:
         return kept
 
     def _match(self, est: EstimateInput, following: int | None = None) -> None:
-        """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING
-        or HOLDING), by default the bank's."""
+        """Notches onto the estimate's usable modes; ``following``: the notch state (TRACKING,
+        HOLDING or PREDICTED), by default the bank's."""
         c = self.config
         adaptive = self.slots[:-1]
         usable = self._usable(est)
+        self._handover(usable)  # identified <-> predicted: the notch next to a mode takes it
         # modes that already have a notch first, then the largest (unknown amplitude last)
         held = {s.mode_id for s in adaptive if s.state != DISABLED or s.depth > 0}
         usable = dict(sorted(usable.items(), key=lambda kv: (
@@ -474,7 +548,7 @@ class RetuningPolicy:
             if slot.state != following or slot.late != (following == HOLDING):
                 slot.state = following
                 slot.late = following == HOLDING
-                slot.hold_since = math.nan if following == TRACKING else est.stamp
+                slot.hold_since = est.stamp if following == HOLDING else math.nan
                 self.revision += 1
             slot.target_depth = c.depth
             sf = mm.frequency_std if math.isfinite(mm.frequency_std) else 0.0
@@ -485,7 +559,7 @@ class RetuningPolicy:
             self._set_model(slot, mm, est)
             touched.append(slot)
         for slot in adaptive:
-            if slot.mode_id not in usable and (slot.state == TRACKING
+            if slot.mode_id not in usable and (slot.state in (TRACKING, PREDICTED)
                                                or (slot.state == HOLDING and slot.late)):
                 self._hold(slot, est.stamp)
         self._redesign(touched)
@@ -543,7 +617,7 @@ class RetuningPolicy:
 
     def _budgeted(self) -> list[Slot]:
         return [s for s in self.slots[:-1]
-                if s.state == TRACKING or (s.state == HOLDING and s.late)]
+                if s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late)]
 
     def _needs_design(self, s: Slot, age: float) -> bool:
         lo, hi, zeta, centre, zeta_c = s.design
@@ -625,6 +699,11 @@ class RetuningPolicy:
         common narrowing factor), or report it exceeded (``budget_priority``)."""
         c = self.config
         tr = self._budgeted()
+        key = (c, self.fs,
+               tuple((id(s), s.target_center, s.desired_bandwidth, s.design) for s in tr))
+        if key == self._budget_key:
+            return  # nothing it depends on changed
+        self._budget_key = key
         self.budget_limited = False
         if not tr:
             self.lag_deg = 0.0
@@ -659,7 +738,7 @@ class RetuningPolicy:
                 np.array([s.design[1] for s in narrowed]),
                 np.array([s.design[2] for s in narrowed]),
                 tc[:, None], zp[:, None], zz[:, None], self.fs,
-                zeta_c=np.array([s.design[4] for s in narrowed]))
+                zeta_c=np.array([s.design[4] for s in narrowed]))  # (grid: up to the depth)
             for s, w in zip(narrowed, worst, strict=True):
                 s.guaranteed = float(w)
                 if w < c.peak_reduction - R.DECISION_MARGIN_DB:
@@ -670,10 +749,19 @@ class RetuningPolicy:
 
     # ---- bank state ----
     def _held(self) -> bool:
-        return any(s.state == TRACKING or (s.state == HOLDING and s.late)
+        return any(s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late)
                    for s in self.slots[:-1])
 
     def _evaluate(self, now: float) -> tuple[int, str]:
+        """The identification's verdict, replaced by PREDICTED when it would hold or fall back
+        and a fresh LPV prediction is at hand."""
+        new, reason = self._evaluate_identification(now)
+        if (new in (BANK_HOLDING, BANK_FALLBACK) and self.estimate is not None
+                and self._prediction_fresh(now)):
+            return BANK_PREDICTED, f"{reason or 'identification not usable'}: LPV prediction"
+        return new, reason
+
+    def _evaluate_identification(self, now: float) -> tuple[int, str]:
         c = self.config
         latest, good = self.estimate, self.good
         if latest is None:
@@ -716,16 +804,18 @@ class RetuningPolicy:
         self.revision += 1
         if new == BANK_HOLDING:
             for s in self.slots[:-1]:
-                if s.state == TRACKING:
+                if s.state in (TRACKING, PREDICTED):
                     s.state, s.late, s.hold_since = HOLDING, True, now
         elif new == BANK_FALLBACK:
             for s in self.slots[:-1]:
-                if s.state == TRACKING or (s.state == HOLDING and s.late):
+                if s.state in (TRACKING, PREDICTED) or (s.state == HOLDING and s.late):
                     s.state, s.late, s.hold_since = HOLDING, False, now
                     s.target_depth = 0.0  # fade out now: the fallback takes over
             self._apply_budget()
         elif new == BANK_TRACKING and self.good is not None:
             self._match(self.good)
+        elif new == BANK_PREDICTED and self.predicted is not None:
+            self._match(self.predicted, PREDICTED)
 
     # ---- time ----
     def advance(self, now: float, dt: float) -> S.SectionParams:
@@ -758,8 +848,11 @@ class RetuningPolicy:
                 s.mode_id = 0
                 s.late = False
                 self.revision += 1
-        if self.bank_state in (BANK_TRACKING, BANK_HOLDING) and self._redesign(self._budgeted()):
-            self._apply_budget()  # widened with the age
+        if (self.bank_state in (BANK_TRACKING, BANK_HOLDING, BANK_PREDICTED)
+                and not 0.0 <= now - self._checked < DESIGN_CHECK_S):  # (or time went back)
+            self._checked = now
+            if self._redesign(self._budgeted()):
+                self._apply_budget()  # widened with the age
         dt = max(float(dt), 0.0)
         lo, hi = c.freq_min, self.fmax
         last = len(self.slots) - 1
@@ -804,7 +897,8 @@ class RetuningPolicy:
         )
 
     def _active(self) -> list[Slot]:
-        return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING)]
+        return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING,
+                                                                     PREDICTED)]
 
     def status(self) -> PolicyStatus:
         """Active notches in cascade order, bank state, estimate age (cheap: every block)."""

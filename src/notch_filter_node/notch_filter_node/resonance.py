@@ -165,9 +165,12 @@ def worst_peak_reduction_db(
     ``(..., k)`` one per region."""
     f, z = box_modes(f_lo, f_hi, zeta_hi, zeta_c)
     center, zp, zz = (np.asarray(a, dtype=float) for a in (center, zp, zz))
+    # no cascade lowers a peak by more than its summed depths: the grid need not go further
+    depth = 20.0 * np.log10(zp / np.maximum(zz, 1e-12)) if zp.size else np.zeros(1)
+    span = float(min(np.max(np.sum(depth, axis=-1)) + 6.0, 80.0))
     if center.ndim > 1:  # one cascade per box: shared by the box's sample modes
         center, zp, zz = center[..., None, :], zp[..., None, :], zz[..., None, :]
-    return np.min(peak_reduction_db(f, z, center, zp, zz, fs), axis=-1)
+    return np.min(peak_reduction_db(f, z, center, zp, zz, fs, span), axis=-1)
 
 
 def design_zp(

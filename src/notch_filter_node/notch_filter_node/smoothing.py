@@ -44,6 +44,15 @@ class ModeModel:
     n_eff: float = 1.0
 
 
+def _median_finite(x: np.ndarray) -> float:
+    """Median of the finite values (NaN if none); plain sort, no numpy dispatch overhead."""
+    v = sorted(float(a) for a in np.asarray(x, dtype=float).ravel() if math.isfinite(a))
+    if not v:
+        return math.nan
+    m = len(v) // 2
+    return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
+
+
 def _n_eff(res: np.ndarray) -> float:
     """Independent samples in ``res`` under an AR(1) model of its lag-1 autocorrelation."""
     n = res.size
@@ -73,7 +82,7 @@ def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
     inflate = n / n_eff
     f_now = float(f.mean() + slope * tc[-1])
     lever = inflate * (1.0 / n + tc[-1] ** 2 / sxx)  # the line at its last point
-    rep_f = float(np.nanmedian(f_std)) if np.isfinite(f_std).any() else math.nan
+    rep_f = _median_finite(f_std)
     # the residual scatter, or the reported std where larger (a line through correlated
     # estimates absorbs part of their error, so the scatter alone reads low)
     s2 = max(s2, rep_f**2) if math.isfinite(rep_f) else s2
@@ -82,12 +91,12 @@ def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
     z = np.asarray(zeta, dtype=float)
     z = z[np.isfinite(z)]
     if z.size >= MIN_ESTIMATES:
-        z_med = float(np.median(z))
+        z_med = _median_finite(z)
         dev = z - z_med
-        s_z = 1.4826 * float(np.median(np.abs(dev)))
+        s_z = 1.4826 * _median_finite(np.abs(dev))
         nz = _n_eff(dev - dev.mean())
         se_z = 1.2533 * s_z / math.sqrt(nz)
-        rep_z = float(np.nanmedian(zeta_std)) if np.isfinite(zeta_std).any() else math.nan
+        rep_z = _median_finite(zeta_std)
         if math.isfinite(rep_z):
             se_z = max(se_z, rep_z / math.sqrt(nz))
     else:

@@ -111,6 +111,29 @@ def test_phase_lag_budget_narrows_the_notches():
     assert all(s.target_bandwidth < s.desired_bandwidth for s in t)
 
 
+@pytest.mark.parametrize("change", [{"phase_lag_budget": 0.5}, {"bandwidth_min": 0.005},
+                                    {"crossover_frequency": 0.8}])
+def test_budget_follows_live_changes(change):
+    """The budget is recomputed only when something it depends on changed: after a live change
+    of any of its inputs the targets and the lag are those of a bank started with the new
+    settings."""
+    cfg = PolicyConfig(fallback_depth=0.0, phase_lag_budget=1.0, bandwidth_min=0.02)
+    modes = [ModeInput(1, "tracked", 2.2, 0.05, 0.02), ModeInput(2, "tracked", 4.0, 0.05, 0.02)]
+    live, fresh = P.RetuningPolicy(cfg, FS), P.RetuningPolicy(P.with_changes(cfg, **change), FS)
+    for pol in (live, fresh):
+        pol.set_estimate(EstimateInput(0.0, True, modes))
+        pol.advance(0.01, 0.01)
+    live.reconfigure(P.with_changes(live.config, **change))
+    for pol in (live, fresh):
+        pol.advance(0.02, 0.01)
+    got, want = ([s.target_bandwidth for s in p.slots if s.state == P.TRACKING]
+                 for p in (live, fresh))
+    # (1 %: the desired widths keep their 10 % hysteresis across the change)
+    assert got == pytest.approx(want, rel=0.01) and live.lag_deg == pytest.approx(
+        fresh.lag_deg, rel=0.01)
+    assert live.lag_deg <= live.config.phase_lag_budget + 1e-6
+
+
 def test_new_notch_starts_within_the_budget():
     """An uncertain first estimate wants a wide notch: it starts at the budget-limited width
     (its depth is still 0), not at the wide one narrowed later at the slew rate."""
@@ -316,7 +339,8 @@ def test_out_of_order_estimate_ignored_restart_accepted():
 
 def test_future_stamp_rejected_and_arrival_age_keeps_staleness():
     """#13 item 2: an estimate stamped +1 h is rejected and counted; one stamped within the
-    tolerance ahead cannot keep the bank fresh: its age runs from its arrival."""
+    tolerance ahead (this node's input is behind) counts from its stamp, so it keeps the bank
+    fresh for at most the tolerance longer; after silence the bank falls back all the same."""
     cfg = PolicyConfig(stale_timeout=1.0, fallback_timeout=3.0, fallback_depth=30.0)
     pol = P.RetuningPolicy(cfg, FS)
     pol.advance(10.0, 0.01)
@@ -328,8 +352,9 @@ def test_future_stamp_rejected_and_arrival_age_keeps_staleness():
     for t in np.arange(10.0, 16.0, 0.05):
         pol.advance(t, 0.05)
         states[round(t, 2)] = pol.bank_state
-    assert states[10.5] == P.BANK_TRACKING and states[11.6] == P.BANK_HOLDING
-    assert states[13.0] == P.BANK_FALLBACK  # arrival 10.0 + fallback_timeout 3.0
+    assert states[10.5] == P.BANK_TRACKING and states[12.4] == P.BANK_TRACKING
+    assert states[12.6] == P.BANK_HOLDING  # stamp 11.5 + stale_timeout 1.0
+    assert states[13.0] == P.BANK_HOLDING and states[14.6] == P.BANK_FALLBACK  # + 3.0
     # an estimate ahead of the data before any data arrived is judged when the data comes
     pol = P.RetuningPolicy(cfg, FS)
     pol.set_estimate(est(3600.0, 3.0))

@@ -73,6 +73,19 @@ def test_box_samples_find_the_worst_mode(seed):
         assert float(box) == pytest.approx(fine.min(), abs=0.05)
 
 
+@pytest.mark.parametrize("case", list(random_cases(8, seed=5)))
+def test_box_grid_limited_to_the_summed_depths_loses_nothing(case):
+    """The box check's grid only spans the mode's response down to the cascade's summed depths
+    (+ 6 dB): no cascade lowers the peak further, so the result is the full 80 dB grid's."""
+    fs, f_mode, zeta, centre, bw, depth = case
+    zp, zz = S.pole_zero_damping(centre, bw, depth, fs)
+    lo, hi = np.array(0.98 * f_mode), np.array(1.02 * f_mode)
+    f, z = R.box_modes(lo, hi, np.array(zeta))
+    full = R.peak_reduction_db(f, z, centre, zp, zz, fs, 80.0).min()
+    got = R.worst_peak_reduction_db(lo, hi, np.array(zeta), centre, zp, zz, fs)
+    assert float(got) == pytest.approx(float(full), abs=0.02)
+
+
 @pytest.mark.parametrize("case", list(random_cases(6, seed=11)))
 def test_design_is_the_narrowest_that_meets_the_requirement(case):
     fs, f_mode, zeta, *_ = case

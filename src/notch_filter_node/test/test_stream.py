@@ -39,6 +39,28 @@ def test_rate_robust_to_lost_messages_and_jitter(fs, block):
     assert c.rate() == pytest.approx(fs, rel=0.01)
 
 
+@pytest.mark.parametrize("lost", [0.7, 0.85, 0.9])
+@pytest.mark.parametrize("fs", [100.0, 400.0])
+def test_rate_holds_when_most_messages_are_lost(fs, lost):
+    """A busy receiver loses runs of messages (most of the window): the intervals are then
+    mostly multiples of the period, and the period is still the period (a bank re-designed at
+    half the rate would put every notch at twice its frequency)."""
+    rng = np.random.default_rng(int(fs * lost))
+    n = 2000
+    keep = rng.random(n) > lost
+    keep[rng.integers(0, n - 300):][:300] &= rng.random(300) > 0.5  # a worse stretch
+    c = ST.StampCheck()
+    stamps = np.round((np.arange(n) / fs + rng.normal(0.0, 0.02 / fs, n)) * 1e9)
+    rates = []
+    for s in stamps[keep].astype(np.int64):
+        feed(c, [s])
+        rates.append(c.rate())
+    rates = np.asarray(rates)
+    rates = rates[np.isfinite(rates)]
+    assert rates.size > 0
+    assert np.all(np.abs(rates / fs - 1.0) < 0.02)
+
+
 def test_rate_change_is_seen_within_a_fifth_of_the_window():
     c = ST.StampCheck()
     t100 = np.arange(100) / 100.0
