@@ -248,6 +248,8 @@ class SysidNode(Node):
             for line in rep.lines:
                 if line.startswith("ERROR "):
                     self.get_logger().error(line[6:], throttle_duration_sec=5.0)
+                elif line.startswith("WARN "):
+                    self._warn.emit(line[5:])
                 else:
                     self._say.emit(line)
             for r in rep.records:
@@ -301,6 +303,8 @@ class SysidNode(Node):
         faults = self._node_faults()
         if r is not None and r.health > D.HEALTH_OK:
             faults.append((r.health, r.health_reason))
+        if st.get("band_warning"):  # the band does not fit the data's rate: said, not a fault
+            faults.append((D.HEALTH_DEGRADED, st["band_warning"]))
         backlog = self.worker.backlog_s()
         kv: dict[str, Any] = {
             "output_topic": self._topic("output"),

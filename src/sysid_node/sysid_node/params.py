@@ -187,16 +187,9 @@ def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
     dmin, dmax = values.get("damping_min", 0.0), values.get("damping_max", 0.5)
     if dmin >= dmax:
         return f"damping_min={dmin:g} must be below damping_max={dmax:g}"
-    fs = values.get("sample_rate", 0.0) or sample_rate
-    if math.isfinite(fs) and fs > 0:
-        k = int(values.get("decimation", 0))
-        if k > 1 and fmax > NYQUIST_SAFE_FRACTION * fs / k:
-            return (f"freq_max={fmax:g} Hz is above {NYQUIST_SAFE_FRACTION:g} x the "
-                    f"identification rate {fs / k:g} Hz (decimation {k})")
-        if fmax > fs / 2:
-            return f"freq_max={fmax:g} Hz is above the Nyquist frequency {fs / 2:g} Hz"
-        if fmin >= fs / 2:
-            return f"freq_min={fmin:g} Hz is not below the Nyquist frequency {fs / 2:g} Hz"
+    reason = band_error(values, values.get("sample_rate", 0.0) or sample_rate)
+    if reason:
+        return reason
     if values.get("output_topic") and values.get("output_topic") == values.get("input_topic"):
         return "input_topic and output_topic must differ"
     sched = values.get("scheduling_topic", "")
@@ -204,6 +197,24 @@ def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
         return "scheduling_topic must differ from output_topic and input_topic"
     if values.get("lpv_model") and not sched:
         return "lpv_model needs scheduling_topic (the signal the model is scheduled on)"
+    return ""
+
+
+def band_error(values: dict[str, Any], fs: float) -> str:
+    """Why ``freq_min``/``freq_max`` cannot be identified at sample rate ``fs`` [Hz] (above the
+    Nyquist frequency, or above the safe fraction of the identification rate when decimating);
+    empty when they can or ``fs`` is unknown (NaN)."""
+    if not (math.isfinite(fs) and fs > 0):
+        return ""
+    fmin, fmax = values.get("freq_min", 0.0), values.get("freq_max", 0.0)
+    k = int(values.get("decimation", 0))
+    if k > 1 and fmax > NYQUIST_SAFE_FRACTION * fs / k:
+        return (f"freq_max={fmax:g} Hz is above {NYQUIST_SAFE_FRACTION:g} x the "
+                f"identification rate {fs / k:g} Hz (decimation {k})")
+    if fmax > fs / 2:
+        return f"freq_max={fmax:g} Hz is above the Nyquist frequency {fs / 2:g} Hz"
+    if fmin >= fs / 2:
+        return f"freq_min={fmin:g} Hz is not below the Nyquist frequency {fs / 2:g} Hz"
     return ""
 
 

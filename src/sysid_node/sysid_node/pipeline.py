@@ -101,6 +101,8 @@ class Pipeline:
         self._recent = _Recent(0)
         self._samples = 0
         self._sensors: SensorChecks | None = None
+        self._band_key: tuple | None = None
+        self._band_reason = ""
 
     def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
         RecursiveDSRA, ModeTracker = self._core
@@ -197,6 +199,24 @@ class Pipeline:
         channels (sensor_checks.py)."""
         return self._sensors.faults() if self._sensors is not None else []
 
+    def band_warning(self) -> str:
+        """``freq_min``/``freq_max`` rechecked against the rate the data has now: measured
+        from the stamps (``sample_rate`` 0) only once data arrives, and again after every time
+        line or layout change, so a band accepted at start-up may not fit (#13 item 8). The
+        reason, empty when it fits or the rate is unknown; logged (WARN) once per change. The
+        estimates keep their health: the modes below the Nyquist frequency are still right."""
+        v = self.values
+        key = (self.sample_rate, v["sample_rate"], v["freq_min"], v["freq_max"],
+               v["decimation"])
+        if key != self._band_key:
+            self._band_key = key
+            reason = P.band_error(v, v["sample_rate"] or self.sample_rate)
+            if reason and reason != self._band_reason:
+                self.log(f"WARN {reason} of the data's sample rate {self.sample_rate:g} Hz: "
+                         "modes above it cannot be identified (set freq_max below it)")
+            self._band_reason = reason
+        return self._band_reason
+
     def _check_sensors(self, c: Chunk) -> None:
         if self._sensors is None or c.reset:
             self._sensors = SensorChecks(self.sample_rate)
@@ -236,6 +256,7 @@ class Pipeline:
         """
         chunks = self.ingest.pop(flush=flush)
         self._drain_events()
+        self.band_warning()
         records: list[EstimateRecord] = []
         for c in chunks:
             self._check_sensors(c)

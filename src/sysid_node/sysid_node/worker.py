@@ -88,6 +88,7 @@ def worker_status(pl: Any) -> dict[str, Any]:
         "lambda": pl.forgetting_factor,
         "processed_ns": processed_ns,
         "values": dict(pl.values),
+        "band_warning": pl.band_warning(),
         "scheduling": pl.scheduling_status(),
     }
 
