@@ -233,6 +233,34 @@ def test_signal_block_with_bad_period_is_an_error_with_a_reason():
     tally("rejected and counted", "signal_block_bad_period")
 
 
+def test_freq_max_rechecked_against_the_measured_rate():
+    """freq_max is accepted before the rate is known (sample_rate 0); the rate the stamps
+    give, at start and again after a clock reset to a lower rate, is checked against it."""
+    lines: list[str] = []
+    pl = Pipeline({"sample_rate": 0.0, "freq_max": 30.0, "output_only": True,
+                   "residual_spectrum_rate": 0.0}, log=lines.append)
+    rng = np.random.default_rng(3)
+
+    def feed(t0_ns: int, fs: float, seconds: float) -> None:
+        n = int(seconds * fs)
+        stamps = t0_ns + np.round(np.arange(n) * 1e9 / fs).astype(np.int64)
+        y = rng.standard_normal((n, 1))
+        for a in range(0, n, 10):
+            pl.push_output(stamps[a:a + 10], y[a:a + 10])
+            pl.step()
+
+    feed(T0, 100.0, 3.0)
+    assert pl.sample_rate == pytest.approx(100.0, rel=1e-6)
+    assert pl.band_warning() == ""
+    feed(T0 - 60 * 10**9, 50.0, 3.0)  # the clock went back a minute; the sensor now at 50 Hz
+    assert pl.counters["time_resets"] == 1
+    assert pl.sample_rate == pytest.approx(50.0, rel=1e-6)
+    assert "freq_max=30 Hz is above the Nyquist frequency 25 Hz" in pl.band_warning()
+    said = [x for x in lines if x.startswith("WARN ") and "freq_max=30" in x]
+    assert len(said) == 1, lines
+    tally("handled", "freq_max_above_measured_nyquist")
+
+
 def test_fault_counts():
     """The tally of the cases above (run with -s to see it)."""
     cases = sum(len(v) for v in TALLY.values())

@@ -13,14 +13,25 @@ then SIGTERM; a terminal sends SIGINT to the whole process group, the worker inc
 
 from __future__ import annotations
 
-import signal
-import sys
+import _signal  # built in, already loaded: the handlers go in before any slower import
 
 _requests: list[int] = []
 
 
 def _on_signal(signum: int, _frame: object) -> None:
     _requests.append(signum)
+
+
+# at import (the console script imports this module before calling main): a Ctrl-C during the
+# rest of the start-up is a stop request, not a KeyboardInterrupt in the middle of an import
+try:
+    for _sig in (_signal.SIGINT, _signal.SIGTERM):
+        _signal.signal(_sig, _on_signal)
+except ValueError:  # imported outside the main thread: main() installs them
+    pass
+
+import signal  # noqa: E402
+import sys  # noqa: E402
 
 
 def stop_requested() -> bool:

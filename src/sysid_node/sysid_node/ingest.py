@@ -22,80 +22,24 @@ Everything is vectorised per message block; no good sample is lost.
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from sysid_node.ingest_segments import Chunk, Segments
+from sysid_node.ingest_stream import (
+    STAMP_TOLERANCE,
+    TIME_RESET_SPAN,
+    IngestReport,
+    Stream,
+    beyond_jump,
+)
+
 #: Relative difference between a stream's measured rate and the sample rate tolerated as jitter.
 RATE_TOLERANCE = 0.01
-#: A stamp within this fraction of the period of a grid instant is taken as taken at that instant.
-STAMP_TOLERANCE = 0.25
-#: Samples needed to measure a rate.
-RATE_SAMPLES = 20
 #: Output data waited for an input stream before running output-only [s].
 INPUT_WAIT = 1.0
 #: Samples older than the hand-out point by more than this [s] are a jump back in time ...
 TIME_JUMP = 1.0
-#: ... and a new time line once such samples span this much data [s].
-TIME_RESET_SPAN = 0.5
-_RECENT = 4096
-#: A sample stamped this far [s] ahead of what its stream has delivered is held as suspect: a
-#: forward clock jump once the held samples span TIME_RESET_SPAN of data, a bad stamp (dropped,
-#: counted) once the stream's own data has moved on by that much without them.
-FUTURE_JUMP = 1.0
-#: A new channel count (or new channel names) held for this much data [s], with nothing in the
-#: old layout meanwhile, is adopted: the estimator restarts on the new layout.
-LAYOUT_CONFIRM_S = 1.0
-#: Held samples per stream at most (suspect stamps, unconfirmed layouts): memory is bounded by
-#: the data received, never by the stamps' span.
-MAX_HELD = 100_000
-#: A measured rate this close to a round value [ppm] is taken as that value.
-SNAP_PPM = 20.0
-
-
-@dataclass
-class Chunk:
-    """Uniformly sampled data for the estimator.
-
-    ``stamps_ns[k]`` is the time of row ``k`` of ``y`` (outputs) and ``u`` (inputs, None when
-    output-only). ``new_segment``: not contiguous with the previous chunk (restart the Hankel
-    window). ``reset``: the channel layout or the time line changed (rebuild the estimator).
-    """
-
-    stamps_ns: np.ndarray
-    y: np.ndarray
-    u: np.ndarray | None
-    new_segment: bool
-    reset: bool = False
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-
-@dataclass
-class _Stream:
-    name: str
-    channels: int | None
-    t: np.ndarray = field(default_factory=lambda: np.empty(0))
-    v: np.ndarray | None = None
-    recent: np.ndarray = field(default_factory=lambda: np.empty(0))
-    max_t: float = -math.inf
-    seen: bool = False
-    rate: float = math.nan
-    mismatch: bool = False
-    rejected: bool = False
-    names: tuple[str, ...] | None = None
-    future: list = field(default_factory=list)  # held (t, values) stamped far ahead
-    future_since: float = math.nan  # max_t when the first of them arrived
-    layout: list = field(default_factory=list)  # held (t, values, names) of a new layout
-
-    def clear(self) -> None:
-        self.t = np.empty(0)
-        self.v = None if self.channels is None else np.empty((0, self.channels))
-        self.recent = np.empty(0)
-        self.max_t = -math.inf
-        self.future, self.future_since = [], math.nan
 
 
 class Ingest:
@@ -123,12 +67,12 @@ class Ingest:
         self.max_fill = int(gap_fill_max_samples)
         self.reorder_window = float(reorder_window)
         self.rate_mismatch = rate_mismatch
-        self.counters: Counter[str] = Counter()
-        self.events: deque[str] = deque(maxlen=200)
-        self.out = _Stream("output", output_channels or None)
-        self.inp = _Stream("input", input_channels or None)
+        self.report = IngestReport()
+        self.counters, self.events = self.report.counters, self.report.events
+        self.out = Stream("output", output_channels or None, self.report)
+        self.inp = Stream("input", input_channels or None, self.report)
         self.origin_ns: int | None = None
-        self._jump: list[tuple[_Stream, np.ndarray, np.ndarray]] = []
+        self._jump: list[tuple[Stream, np.ndarray, np.ndarray]] = []
         self._reset_timeline(first=True)
 
     # ---- state ----
@@ -137,10 +81,7 @@ class Ingest:
         self.t0 = math.nan  # grid origin [s relative to origin_ns]
         self.next_k = 0
         self.mode = "pending" if self.use_input else "output_only"
-        self._segment_open = False
-        self._pending_reset = not first
-        self._emitted_any = False
-        self._gap_run = 0
+        self.segments = Segments(self.report, pending_reset=not first)
         for s in (self.out, self.inp):
             s.clear()
             s.seen = False
@@ -157,7 +98,7 @@ class Ingest:
         return self.t0 + (self.next_k - 1) * self.period
 
     def _event(self, text: str) -> None:
-        self.events.append(text)
+        self.report.event(text)
 
     # ---- input ----
     def push_output(self, stamps_ns: np.ndarray, values: np.ndarray,
@@ -178,7 +119,7 @@ class Ingest:
         self.counters[f"{stream}_{key}"] += n
         self._event(text)
 
-    def _push(self, s: _Stream, stamps_ns: np.ndarray, values: np.ndarray,
+    def _push(self, s: Stream, stamps_ns: np.ndarray, values: np.ndarray,
               names: tuple[str, ...] | None = None) -> None:
         stamps_ns = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
         values = np.asarray(values, dtype=float)
@@ -194,26 +135,11 @@ class Ingest:
             return
         c = values.shape[1]
         names = tuple(names) if names and len(names) == c else None
-        if s.channels is None and c > 0:
-            s.channels = c
-            s.v = np.empty((0, c))
-        if s.names is None and names is not None and c == s.channels:
-            s.names = names
-        if c == s.channels and names is not None and names != s.names:
-            if sorted(names) == sorted(s.names):  # the same channels in another order
-                values = values[:, [names.index(x) for x in s.names]]
-                if not self.counters[f"{s.name}_reordered"]:
-                    self._event(f"{s.name}: channels arrive in another order ({', '.join(names)}"
-                                f"): mapped back by name to {', '.join(s.names)}")
-                self.counters[f"{s.name}_reordered"] += n
-                names = s.names
-        if c != s.channels or (names is not None and names != s.names):
-            if not self._new_layout(s, stamps_ns, values, names):
+        values, names = s.map_names(values, names)
+        if s.other_layout(c, names):
+            if not s.hold_layout(stamps_ns, values, names):
                 return
-            c = s.channels
-        elif s.layout:
-            self._event(f"{s.name}: back to the {s.channels}-channel layout")
-            s.layout = []
+            self._reset_timeline()
         finite = np.isfinite(values).all(axis=1)
         if not finite.all():
             bad = int(n - finite.sum())
@@ -227,44 +153,13 @@ class Ingest:
         t = (stamps_ns - self.origin_ns) * 1e-9
         self._accept(s, t, values)
 
-    def _new_layout(self, s: _Stream, stamps_ns: np.ndarray, values: np.ndarray,
-                    names: tuple[str, ...] | None) -> bool:
-        """Samples in another channel layout (count or names): dropped and counted while
-        unconfirmed; adopted (True, timeline and estimator reset) once only they have arrived
-        for LAYOUT_CONFIRM_S of data."""
-        n, c = values.shape
-        key = "wrong_channels" if c != s.channels else "channel_names_changed"
-        was = (f"{s.channels} channels" if c != s.channels
-               else f"names {', '.join(s.names or ())}")
-        now = f"{c} channels" if c != s.channels else f"names {', '.join(names or ())}"
-        self.counters[f"{s.name}_{key}"] += n
-        if not s.layout:
-            self._event(f"{s.name}: {n} sample(s) with {now}, expected {was}: dropped")
-        s.layout.append((stamps_ns, values, names))
-        held = sum(len(x[0]) for x in s.layout)
-        span = (max(int(x[0].max()) for x in s.layout)
-                - min(int(x[0].min()) for x in s.layout)) * 1e-9
-        same = all(x[1].shape[1] == c and x[2] == names for x in s.layout)
-        if not same or held > MAX_HELD:
-            s.layout = [(stamps_ns, values, names)]
-            return False
-        if span < LAYOUT_CONFIRM_S:
-            return False
-        self._event(f"{s.name}: {now} instead of {was} for {span:.2f} s of data: new layout "
-                    "adopted, estimator reset")
-        self.counters["layout_changes"] += 1
-        s.channels, s.names, s.layout = c, names, []
-        self._reset_timeline()
-        s.v = np.empty((0, c))
-        return True
-
-    def _accept(self, s: _Stream, t: np.ndarray, values: np.ndarray) -> None:
+    def _accept(self, s: Stream, t: np.ndarray, values: np.ndarray) -> None:
         """Accept finite samples, or hold them while the output stamps have jumped back or
         they are stamped far ahead of their stream."""
         if math.isfinite(s.max_t):
-            ahead = _beyond_jump(t, s.max_t)
+            ahead = beyond_jump(t, s.max_t)
             if ahead.any() or s.future:
-                t, values = self._hold_future(s, t, values, ahead)
+                t, values = s.hold_future(t, values, ahead)
                 if not len(t):
                     return
         if s is self.out:
@@ -281,109 +176,28 @@ class Ingest:
                                 "estimator reset")
                     self._reset_timeline()
                     for hs, ht, hv in held:
-                        self._accept_now(hs, ht, hv)
+                        self._add(hs, ht, hv)
                 return
             if self._jump:  # back on the current time line: the held samples were late
                 held, self._jump = self._jump, []
                 for hs, ht, hv in held:
-                    self._accept_now(hs, ht, hv)
+                    self._add(hs, ht, hv)
         elif self._jump:
             self._jump.append((s, t, values))
             return
-        self._accept_now(s, t, values)
+        self._add(s, t, values)
 
-    def _hold_future(self, s: _Stream, t: np.ndarray, values: np.ndarray, ahead: np.ndarray):
-        """Hold samples stamped far ahead; return the others. The held ones are accepted as a
-        forward clock jump once they span TIME_RESET_SPAN of data, dropped as bad stamps once
-        the stream's own data moved on by that much without them."""
-        if ahead.any():
-            if not s.future:
-                s.future_since = s.max_t
-            s.future.append((t[ahead], values[ahead]))
-            t, values = t[~ahead], values[~ahead]
-        ft = np.concatenate([x[0] for x in s.future])
-        if float(ft.max() - ft.min()) >= TIME_RESET_SPAN and len(t) == 0:
-            held, s.future = s.future, []
-            self._event(f"{s.name}: stamps jumped ahead by {float(ft.min()) - s.max_t:.3f} s: "
-                        "new data after a gap")
-            return (np.concatenate([x[0] for x in held]),
-                    np.concatenate([x[1] for x in held]))
-        newest = max(s.max_t, float(t.max()) if len(t) else -math.inf)
-        if newest - s.future_since >= TIME_RESET_SPAN or len(ft) > MAX_HELD:
-            self.counters[f"{s.name}_bad_stamp"] += len(ft)
-            self._event(f"{s.name}: {len(ft)} sample(s) stamped {float(ft.min()) - newest:.6g} s "
-                        "or more ahead of the stream: dropped (bad stamp)")
-            s.future = []
-        return t, values
-
-    def _accept_now(self, s: _Stream, t: np.ndarray, values: np.ndarray) -> None:
-        n = len(t)
-        # out of order with respect to arrival
-        prev_max = np.maximum.accumulate(np.concatenate(([s.max_t], t)))[:-1]
-        ooo = int((t < prev_max).sum())
-        if ooo:
-            self.counters[f"{s.name}_out_of_order"] += ooo
-        s.max_t = max(s.max_t, float(t.max()))
+    def _add(self, s: Stream, t: np.ndarray, values: np.ndarray) -> None:
         tol = STAMP_TOLERANCE * self.period if math.isfinite(self.fs) else 1e-6
-        order = np.argsort(t, kind="stable")
-        t, values = t[order], values[order]
-        # duplicates within the block and against recent samples
-        dup = np.zeros(n, bool)
-        if n > 1:
-            dup[1:] = np.diff(t) <= tol
-        if len(s.recent):
-            dup |= _distance_to_nearest(s.recent, t) <= tol
-        if dup.any():
-            self.counters[f"{s.name}_duplicate"] += int(dup.sum())
-            self._event(f"{s.name}: {int(dup.sum())} duplicate stamp(s) dropped")
-        late = ~dup & (t <= self.watermark + tol)
-        if late.any():
-            self.counters[f"{s.name}_late"] += int(late.sum())
-            self._event(f"{s.name}: {int(late.sum())} sample(s) older than the data already "
-                        "processed (stamps went backwards): dropped")
-        keep = ~dup & ~late
-        if not keep.any():
-            return
-        t, values = t[keep], values[keep]
-        self.counters[f"{s.name}_accepted"] += len(t)
-        s.seen = True
-        if len(s.recent) and t[0] < s.recent[-1]:
-            s.recent = np.sort(np.concatenate((s.recent, t)))
-        else:
-            s.recent = np.concatenate((s.recent, t))
-        if len(s.recent) > 2 * _RECENT:
-            s.recent = s.recent[-_RECENT:]
-        if len(s.t) and t[0] < s.t[-1]:
-            tt = np.concatenate((s.t, t))
-            o = np.argsort(tt, kind="stable")
-            s.t, s.v = tt[o], np.concatenate((s.v, values))[o]
-        else:
-            s.t = np.concatenate((s.t, t))
-            s.v = values if s.v is None or len(s.v) == 0 else np.concatenate((s.v, values))
+        s.add(t, values, tol, self.watermark)
 
     # ---- rates ----
-    def _measure(self, s: _Stream) -> float:
-        r = s.recent
-        if len(r) < RATE_SAMPLES:
-            return math.nan
-        d = np.diff(r[-512:])
-        d = d[d > 0]
-        if len(d) < RATE_SAMPLES // 2:
-            return math.nan
-        med = float(np.median(d))
-        # refine over the window: whole number of periods between first and last stamp
-        span = float(r[-1] - r[max(0, len(r) - 513)])
-        steps = round(span / med)
-        if steps >= 1 and abs(span / steps - med) < 0.1 * med:
-            med = span / steps
-        return _snap_rate(1.0 / med)
-
     def rates(self) -> dict[str, float]:
         """Measured rate of each stream [Hz], NaN while unknown."""
         return {"output": self.out.rate, "input": self.inp.rate}
 
-    def _check_rate(self, s: _Stream) -> None:
-        s.rate = self._measure(s)
+    def _check_rate(self, s: Stream) -> None:
+        s.rate = s.measure_rate()
         if not (math.isfinite(s.rate) and math.isfinite(self.fs)):
             return
         mismatch = abs(s.rate - self.fs) > RATE_TOLERANCE * self.fs
@@ -406,41 +220,14 @@ class Ingest:
 
         ``flush``: the streams have ended; hand out everything (no reorder hold-back).
         """
-        if self.out.channels is None or not self.out.seen:
+        streams = self._streams_ready(flush)
+        if not streams:
             return []
-        if not math.isfinite(self.fs):
-            fs = self._measure(self.out)
-            if not math.isfinite(fs):
-                return []
-            self.fs = fs
-            self._event(f"sample rate measured from the stamps: {fs:.6g} Hz")
-        for s in (self.out, self.inp):
-            self._check_rate(s)
-        if math.isnan(self.t0):
-            if len(self.out.t) == 0:
-                return []
-            self.t0 = float(self.out.t[0])
         T = self.period
-        self._choose_mode(flush)
-        if self.mode == "pending":
-            return []
-        streams = [self.out] + ([self.inp] if self.mode == "io" else [])
-        if any(len(s.t) == 0 for s in streams):
-            return []
         hold = 0.0 if flush else self.reorder_window
         ready = min(float(s.t[-1]) for s in streams) - hold
         kmax = math.floor((ready - self.t0) / T + STAMP_TOLERANCE)
-        # grid instants before the next sample of a stream that cannot be filled: skip them
-        g_next = self.t0 + self.next_k * T
-        k_skip = self.next_k
-        for s in streams:
-            i = int(np.searchsorted(s.t, g_next - STAMP_TOLERANCE * T))
-            if i < len(s.t) and s.t[i] - g_next > (self.max_fill + 1) * T:
-                k_skip = max(k_skip, math.ceil((s.t[i] - self.t0) / T - STAMP_TOLERANCE))
-        k_skip = min(k_skip, kmax + 1)
-        if k_skip > self.next_k:
-            self._missing(k_skip - self.next_k)
-            self.next_k = k_skip
+        self._skip_unfillable(streams, kmax)
         if kmax < self.next_k:
             return []
         # never more grid instants than the samples held could fill (a stamp far ahead
@@ -453,7 +240,7 @@ class Ingest:
         vals = []
         stamps_t = g
         for s in streams:
-            v, ok, interp, st = self._sample_at(s, g, T)
+            v, ok, interp, st = s.sample_at(g, T, self.max_fill)
             if s is self.out:
                 stamps_t = st
             valid &= ok
@@ -461,14 +248,50 @@ class Ingest:
             n_interp = int((interp & ok).sum())
             if n_interp:
                 self.counters[f"{s.name}_{'resampled' if s.mismatch else 'repaired'}"] += n_interp
-        chunks = self._split(k, stamps_t, valid, vals)
+        chunks = self.segments.split(stamps_t, valid, vals, self.origin_ns, T)
         self.next_k = kmax + 1
         keep_from = self.watermark - (self.max_fill + 2) * T
         for s in (self.out, self.inp):
-            i = int(np.searchsorted(s.t, keep_from))
-            if i:
-                s.t, s.v = s.t[i:], s.v[i:]
+            s.drop_before(keep_from)
         return chunks
+
+    def _streams_ready(self, flush: bool) -> list[Stream]:
+        """The streams to align now (rate known, grid origin set, mode chosen, data held);
+        empty while not ready."""
+        if self.out.channels is None or not self.out.seen:
+            return []
+        if not math.isfinite(self.fs):
+            fs = self.out.measure_rate()
+            if not math.isfinite(fs):
+                return []
+            self.fs = fs
+            self._event(f"sample rate measured from the stamps: {fs:.6g} Hz")
+        for s in (self.out, self.inp):
+            self._check_rate(s)
+        if math.isnan(self.t0):
+            if len(self.out.t) == 0:
+                return []
+            self.t0 = float(self.out.t[0])
+        self._choose_mode(flush)
+        if self.mode == "pending":
+            return []
+        streams = [self.out] + ([self.inp] if self.mode == "io" else [])
+        return [] if any(len(s.t) == 0 for s in streams) else streams
+
+    def _skip_unfillable(self, streams: list[Stream], kmax: int) -> None:
+        """Skip the grid instants (up to ``kmax``) before the next sample of a stream that
+        cannot be filled (counted as missing)."""
+        T = self.period
+        g_next = self.t0 + self.next_k * T
+        k_skip = self.next_k
+        for s in streams:
+            i = int(np.searchsorted(s.t, g_next - STAMP_TOLERANCE * T))
+            if i < len(s.t) and s.t[i] - g_next > (self.max_fill + 1) * T:
+                k_skip = max(k_skip, math.ceil((s.t[i] - self.t0) / T - STAMP_TOLERANCE))
+        k_skip = min(k_skip, kmax + 1)
+        if k_skip > self.next_k:
+            self.segments.missing(k_skip - self.next_k)
+            self.next_k = k_skip
 
     def _choose_mode(self, flush: bool) -> None:
         """Input-output while input samples arrive, output-only otherwise (with a log line)."""
@@ -491,101 +314,4 @@ class Ingest:
             self._event("input samples arrived: input-output identification, estimator reset")
         else:
             return
-        self._pending_reset = True
-        self._segment_open = False
-
-    def _missing(self, n: int) -> None:
-        """``n`` grid instants without usable data (counted as a gap when data resumes)."""
-        self._gap_run += max(0, int(n))
-
-    def _close_gap(self) -> None:
-        n, self._gap_run = self._gap_run, 0
-        if n <= 0:
-            return
-        if self._emitted_any:
-            self.counters["gaps"] += 1
-            self.counters["gap_samples"] += n
-            self._event(f"gap of {n * self.period:.3f} s ({n} samples): Hankel window restarted")
-            self._segment_open = False
-        else:
-            self.counters["unaligned_start_samples"] += n
-
-    def _sample_at(self, s: _Stream, g: np.ndarray, T: float):
-        """Values of stream ``s`` at grid times ``g``: taken (stamp within tolerance) or
-        interpolated between neighbours at most ``max_fill + 1`` periods apart; also the stamp
-        of each value (the sample's own when taken, the grid time when interpolated)."""
-        t = s.t
-        j = np.searchsorted(t, g)
-        jl = np.clip(j - 1, 0, len(t) - 1)
-        jr = np.clip(j, 0, len(t) - 1)
-        dl, dr = np.abs(g - t[jl]), np.abs(t[jr] - g)
-        tol = STAMP_TOLERANCE * T
-        exact_l, exact_r = dl <= tol, dr <= tol
-        exact = exact_l | exact_r
-        ji = np.where(exact_l & (~exact_r | (dl <= dr)), jl, jr)
-        out = s.v[ji].copy()
-        span = t[jr] - t[jl]
-        inner = (j > 0) & (j < len(t)) & (span > 0)
-        interp = ~exact & inner & (span <= (self.max_fill + 1 + STAMP_TOLERANCE) * T)
-        if interp.any():
-            w = ((g[interp] - t[jl[interp]]) / span[interp])[:, None]
-            out[interp] = s.v[jl[interp]] * (1 - w) + s.v[jr[interp]] * w
-        ok = exact | interp
-        stamps = np.where(exact, t[ji], g)  # a sample taken as it is keeps its own stamp
-        return out, ok, interp, stamps
-
-    def _split(self, k, g, valid, vals) -> list[Chunk]:
-        chunks: list[Chunk] = []
-        if not len(k):
-            return chunks
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], valid.astype(np.int8), [0]))))
-        starts, ends = edges[::2], edges[1::2]
-        pos = 0
-        for a, b in zip(starts, ends, strict=True):
-            self._missing(a - pos)
-            self._close_gap()
-            pos = b
-            stamps = self.origin_ns + np.round(g[a:b] * 1e9).astype(np.int64)
-            chunks.append(
-                Chunk(
-                    stamps_ns=stamps,
-                    y=vals[0][a:b],
-                    u=vals[1][a:b] if len(vals) > 1 else None,
-                    new_segment=not self._segment_open,
-                    reset=self._pending_reset,
-                )
-            )
-            self._pending_reset = False
-            self._segment_open = True
-            self._emitted_any = True
-        self._missing(len(k) - pos)
-        return chunks
-
-
-def _beyond_jump(t: np.ndarray, last: float) -> np.ndarray:
-    """Samples after the first forward jump of more than FUTURE_JUMP in the stamp-sorted
-    sequence that continues from ``last`` (a block spanning many seconds is no jump)."""
-    tt = np.sort(t)
-    step = np.diff(np.concatenate(([last], tt)))
-    jumps = np.flatnonzero(step > FUTURE_JUMP)
-    if not len(jumps):
-        return np.zeros(len(t), bool)
-    return t >= tt[jumps[0]]
-
-
-def _snap_rate(fs: float) -> float:
-    """The roundest rate (whole, tenths or hundredths of Hz) within ``SNAP_PPM`` of ``fs``:
-    stamps stored as float seconds or quantized by a driver make 100 Hz measure as 99.99993."""
-    for digits in (0, 1, 2):
-        r = round(fs, digits)
-        if r > 0 and abs(r - fs) <= SNAP_PPM * 1e-6 * fs:
-            return float(r)
-    return fs
-
-
-def _distance_to_nearest(sorted_t: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Distance from each ``t`` to the nearest element of the non-empty sorted ``sorted_t``."""
-    j = np.searchsorted(sorted_t, t)
-    jl = np.clip(j - 1, 0, len(sorted_t) - 1)
-    jr = np.clip(j, 0, len(sorted_t) - 1)
-    return np.minimum(np.abs(sorted_t[jl] - t), np.abs(sorted_t[jr] - t))
+        self.segments.restart()

@@ -116,7 +116,7 @@ class SysidNode(Node):
         self._receiver.start()
         v = self.values
         # the names after remapping and namespace, as `ros2 topic list` shows them
-        names = [s.topic_name for s in self._subs.values()]
+        names = [self._subs[s].topic_name for s in ("output", "input") if s in self._subs]
         mode = "output-only" if len(names) < 2 else (
             f"inputs from {names[1]} ({v['input_type']})")
         self.get_logger().info(
@@ -172,6 +172,8 @@ class SysidNode(Node):
         streams = [("output", values["output_topic"], values["output_type"])]
         if values["input_topic"] and not values["output_only"]:
             streams.append(("input", values["input_topic"], values["input_type"]))
+        if values["scheduling_topic"]:  # online LPV: to the worker like the data
+            streams.append(("scheduling", values["scheduling_topic"], "SignalSample"))
         for stream, topic, kind in streams:
             def callback(msg, stream=stream, kind=kind):
                 self._on_burst(stream, kind, axes, msg)
@@ -246,6 +248,8 @@ class SysidNode(Node):
             for line in rep.lines:
                 if line.startswith("ERROR "):
                     self.get_logger().error(line[6:], throttle_duration_sec=5.0)
+                elif line.startswith("WARN "):
+                    self._warn.emit(line[5:])
                 else:
                     self._say.emit(line)
             for r in rep.records:
@@ -299,6 +303,8 @@ class SysidNode(Node):
         faults = self._node_faults()
         if r is not None and r.health > D.HEALTH_OK:
             faults.append((r.health, r.health_reason))
+        if st.get("band_warning"):  # the band does not fit the data's rate: said, not a fault
+            faults.append((D.HEALTH_DEGRADED, st["band_warning"]))
         backlog = self.worker.backlog_s()
         kv: dict[str, Any] = {
             "output_topic": self._topic("output"),
@@ -323,6 +329,7 @@ class SysidNode(Node):
             "data_backlog_s": self.worker.data_backlog_s(),
             "queued_messages": self.worker.queued_messages(),
             "worker_alive": self.worker.alive,
+            **st.get("scheduling", {}),  # online LPV: scheduling_value, _age_s, lpv_in_range
             **self.worker.stages.percentiles(),
         }
         for k, v in sorted(arrivals.items()):

@@ -6,7 +6,8 @@ estimator then identifies noise or nothing while claiming convergence. These che
 the samples the ingest hands out, vectorised per chunk, with the state carried across chunks:
 
 - **stuck / dead**: a channel repeating exactly the same value for at least ``STUCK_S`` seconds
-  (and ``STUCK_MIN_SAMPLES`` samples). A real analog signal with noise never does; a quantised
+  and ``STUCK_MIN_SAMPLES`` samples, or for ``STUCK_MAX_S`` seconds whatever the count (so at
+  any rate within about 1 s of data). A real analog signal with noise never does; a quantised
   one of a quiet structure can, so the run must be long. An output stuck is a FAULT (no mode can
   be identified from it); an input stuck while an output moves is a FAULT too (the input-output
   relation is garbage), an input stuck while the outputs are also still is only DEGRADED.
@@ -27,8 +28,10 @@ import numpy as np
 HEALTH_OK, HEALTH_DEGRADED, HEALTH_FAULT = 0, 1, 2
 #: A channel repeating one value this long [s] ...
 STUCK_S = 0.5
-#: ... and for at least this many samples is stuck.
+#: ... and for at least this many samples is stuck ...
 STUCK_MIN_SAMPLES = 20
+#: ... but a run this long [s] always is (at low rates: flagged within this much data).
+STUCK_MAX_S = 1.0
 #: Window of the clipping check [s].
 CLIP_WINDOW_S = 1.0
 #: Share of the window's samples at its extremes that marks clipping.
@@ -78,7 +81,7 @@ class _Channels:
         """(channel, value) of every channel stuck now."""
         if self.run is None:
             return []
-        need = max(STUCK_MIN_SAMPLES, int(np.ceil(STUCK_S * self.fs)))
+        need = stuck_samples(self.fs)
         return [(int(k), float(self.last[k])) for k in np.flatnonzero(self.run >= need)]
 
     def moving(self) -> bool:
@@ -104,6 +107,12 @@ class _Channels:
         hold = int(CLIP_HOLD_S * self.fs)
         self.clip_seen = {k: v for k, v in self.clip_seen.items() if self.seen - v[0] <= hold}
         return [(k, share) for k, (_, share) in sorted(self.clip_seen.items())]
+
+
+def stuck_samples(fs: float) -> int:
+    """Equal samples in a row that make a channel stuck at rate ``fs`` [Hz] (at least 2)."""
+    need = max(STUCK_MIN_SAMPLES, int(np.ceil(STUCK_S * fs)))
+    return max(2, min(need, int(np.ceil(STUCK_MAX_S * fs))))
 
 
 def _in_runs(mask: np.ndarray, min_run: int) -> np.ndarray:
