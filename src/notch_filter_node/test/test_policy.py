@@ -440,3 +440,21 @@ def test_a_split_track_gets_one_notch():
              ModeInput(3, "tracked", 3.60, 0.01, 0.02, 0.002, 0.5)]  # 20 % apart: its own
     pol.set_estimate(EstimateInput(0.0, True, modes))
     assert sorted(s.mode_id for s in pol.slots[:-1] if s.state == P.TRACKING) == [1, 3]
+
+
+def test_late_notch_widens_after_data_time_went_back():
+    """The widths are checked against the age at most every 50 ms of data; a stream that
+    restarts at an earlier data time (a replayed recording, a restarted estimator) keeps being
+    checked: the late notch still widens with the age."""
+    cfg = PolicyConfig(stale_timeout=0.5, fallback_timeout=30.0, fallback_depth=0.0)
+    pol = P.RetuningPolicy(cfg, FS)
+    for t in np.arange(100.0, 101.0, 0.2):
+        pol.set_estimate(est(t, 3.0))
+        pol.advance(t, 0.2)
+    pol.set_estimate(est(1.0, 3.0))  # restarted: 99 s older, taken
+    widths = []
+    for t in np.arange(1.0, 4.0, 0.01):
+        pol.advance(t, 0.01)
+        widths.append(pol.slots[0].desired_bandwidth)
+    assert pol.bank_state == P.BANK_HOLDING
+    assert widths[-1] > 1.5 * widths[0]

@@ -132,7 +132,7 @@ class SysidNode(Node):
         self._reader.start()
         v = self.values
         # the names after remapping and namespace, as `ros2 topic list` shows them
-        names = [s.topic_name for s in self._subs.values()]
+        names = [self._subs[s].topic_name for s in ("output", "input") if s in self._subs]
         mode = "output-only" if len(names) < 2 else (
             f"inputs from {names[1]} ({v['input_type']})")
         self.get_logger().info(
@@ -189,6 +189,8 @@ class SysidNode(Node):
             streams = [("output", values["output_topic"], values["output_type"])]
             if values["input_topic"] and not values["output_only"]:
                 streams.append(("input", values["input_topic"], values["input_type"]))
+            if values["scheduling_topic"]:  # online LPV: to the worker like the data
+                streams.append(("scheduling", values["scheduling_topic"], "SignalSample"))
             for stream, topic, kind in streams:
                 sub = self.create_subscription(mc.signal_msg_class(kind), topic, _never_called, qos,
                                                callback_group=self._polled, raw=True)
@@ -339,6 +341,7 @@ class SysidNode(Node):
             "data_backlog_s": self.worker.data_backlog_s(),
             "queued_messages": self.worker.queued_messages(),
             "worker_alive": self.worker.alive,
+            **st.get("scheduling", {}),  # online LPV: scheduling_value, _age_s, lpv_in_range
             **self.worker.stages.percentiles(),
         }
         for k, v in sorted(arrivals.items()):

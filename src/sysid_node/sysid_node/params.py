@@ -127,6 +127,19 @@ PARAMS: tuple[ParamSpec, ...] = (
        choices=NP.QOS_CHOICES),
     _p("qos_depth", int, 1000, "History depth of the subscriptions [messages]", "structural",
        lo=1, hi=100000),
+    # -- online LPV model (2) (read-only: set at start-up) --
+    _p("scheduling_topic", str, "",
+       "Topic of the scheduling signal (sysid_msgs/SignalSample, e.g. rotor_speed; QoS as the "
+       "data topics: qos); each estimate carries its value at the estimate's stamp and, with "
+       "lpv_model, the modes the LPV model predicts there; empty = off; relative names follow "
+       "the node's namespace", "read_only"),
+    _p("lpv_model", str, "",
+       "LPV model file (.npz written by the envelope tool or LpvModel.save) whose predicted "
+       "modes are published next to the identified ones; needs scheduling_topic; empty = off",
+       "read_only"),
+    _p("scheduling_timeout", float, 1.0,
+       "A scheduling sample older than this at an estimate's stamp gives no value and no "
+       "prediction [s]", "read_only", lo=0.001, hi=3600.0, unit="s"),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMS}
@@ -148,7 +161,11 @@ def _check_sysid(name: str, value: Any) -> str:
         return check_imu_axes(value)
     if name == "block_rows" and value == 1:
         return "block_rows=1 is too small: use 0 (auto) or at least 2"
-    if name == "output_topic" or (name == "input_topic" and value):
+    if name == "lpv_model" and value:
+        from sysid_node.scheduling import model_error
+
+        return model_error(value)
+    if name == "output_topic" or (name in ("input_topic", "scheduling_topic") and value):
         reason = topic_name_error(value)
         if reason:
             return f"{name}: {reason}"
@@ -175,6 +192,11 @@ def validate_set(values: dict[str, Any], sample_rate: float = math.nan) -> str:
         return reason
     if values.get("output_topic") and values.get("output_topic") == values.get("input_topic"):
         return "input_topic and output_topic must differ"
+    sched = values.get("scheduling_topic", "")
+    if sched and sched in (values.get("output_topic"), values.get("input_topic")):
+        return "scheduling_topic must differ from output_topic and input_topic"
+    if values.get("lpv_model") and not sched:
+        return "lpv_model needs scheduling_topic (the signal the model is scheduled on)"
     return ""
 
 

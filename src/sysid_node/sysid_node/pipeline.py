@@ -30,6 +30,7 @@ from sysid_node.records import (
     ModeRecord,
     SpectrumRecord,
 )
+from sysid_node.scheduling import predictor_from
 from sysid_node.sensor_checks import SensorChecks
 from sysid_node.validation.residuals import residual_spectrum
 
@@ -74,6 +75,8 @@ class Pipeline:
         #: channel names per stream, from the signal messages (for ResidualSpectrum.channel_name)
         self.channel_names: dict[str, list[str]] = {"output": [], "input": []}
         self._build_ingest()
+        #: online LPV (scheduling_topic, lpv_model): None when off
+        self.scheduling = predictor_from(self.values)
 
     # ---- construction ----
     def _build_ingest(self) -> None:
@@ -143,6 +146,7 @@ class Pipeline:
             "frequency_gate": v["tracking_frequency_tolerance"],
             "confirm_hits": v["tracking_confirm_count"],
             "lost_timeout_s": v["tracking_lost_timeout"],
+            "max_tracked": v["max_modes"],
         }
 
     def _realization_interval(self) -> int:
@@ -265,7 +269,24 @@ class Pipeline:
                     continue
             records += self._feed(c)
         self._apply_health(records)
+        self._predict(records)
         return records
+
+    # ---- online LPV (scheduling_topic, lpv_model; scheduling.py) ----
+    def push_scheduling(self, stamps_ns: np.ndarray, values: np.ndarray,
+                        names: tuple[str, ...] | None = None) -> None:
+        """A block of scheduling-signal samples (ignored when scheduling_topic is off)."""
+        if self.scheduling is not None:
+            self.scheduling.push(stamps_ns, values, names)
+
+    def _predict(self, records: list[EstimateRecord]) -> None:
+        """Each record's scheduling value and LPV-predicted modes at its stamp."""
+        if self.scheduling is not None:
+            self.scheduling.annotate(records)
+
+    def scheduling_status(self) -> dict[str, Any]:
+        """/diagnostics keys of the online LPV ({} when off)."""
+        return self.scheduling.status() if self.scheduling is not None else {}
 
     def _drain_events(self) -> None:
         while self.ingest.events:
@@ -418,7 +439,7 @@ class Pipeline:
         if y.shape[0] - skip < SPECTRUM_MIN_SAMPLES:
             return
         try:
-            e = (y - model.predict(y, u))[skip:]
+            e = (y - model.stable_predictor().predict(y, u))[skip:]
         except (ValueError, np.linalg.LinAlgError):
             return
         if not np.all(np.isfinite(e)):
@@ -440,6 +461,7 @@ class Pipeline:
                         dtype=float).reshape(-1)
         self.records_made += 1
         band = P.effective_band(self.values, self.identification_rate)
+        status = est.status() if hasattr(est, "status") else None  # estimator-side health
         return EstimateRecord(
             stamp_ns=stamp_ns,
             modes=out,
@@ -453,6 +475,8 @@ class Pipeline:
             counters=self.counters,
             band_min_hz=band[0],
             band_max_hz=band[1],
+            health=status.health if status else 0,
+            health_reason=status.reason if status else "",
         )
 
     def _mode_record(self, tm: Any, t: float) -> ModeRecord:
@@ -522,6 +546,8 @@ class Pipeline:
             est.set_forgetting_factor(P.effective_lambda(v, fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
             est.set_band(P.effective_band(v, fs), (v["damping_min"], v["damping_max"]))
+        if "max_modes" in changes and hasattr(self.tracker, "max_tracked"):
+            self.tracker.max_tracked = v["max_modes"]
         if "max_modes" in changes:
             if hasattr(est, "set_max_modes"):
                 est.set_max_modes(v["max_modes"])

@@ -89,6 +89,7 @@ def worker_status(pl: Any) -> dict[str, Any]:
         "processed_ns": processed_ns,
         "values": dict(pl.values),
         "band_warning": pl.band_warning(),
+        "scheduling": pl.scheduling_status(),
     }
 
 
@@ -125,8 +126,10 @@ def worker_main(values: dict[str, Any], inbox: Any, outbox: Any) -> None:
         try:
             if kind == "data":
                 batch_id, blocks, realize_from_ns = payload
+                push = {"output": pl.push_output, "input": pl.push_input,
+                        "scheduling": pl.push_scheduling}
                 for stream, t, v, names in blocks:
-                    (pl.push_output if stream == "output" else pl.push_input)(t, v, names)
+                    push[stream](t, v, names)
                 records = pl.step(realize_from_ns=realize_from_ns)
             elif kind == "params":
                 reason = pl.set_parameters(payload[0])
@@ -274,7 +277,7 @@ class WorkerLink:
             self._in_flight[batch_id] = items[0].arrived
             self._sent_ns[batch_id] = time.time_ns()
             self.stages.add("waiting", time.monotonic() - items[0].arrived)
-        blocks = [(s, *b) for s in ("output", "input") for b in
+        blocks = [(s, *b) for s in ("output", "input", "scheduling") for b in
                   stack_named([(p.stamps, p.values, p.names) for p in items if p.stream == s])]
         realize_from = None
         if held and self.newest_ns is not None and self.values.get("catch_up", True):

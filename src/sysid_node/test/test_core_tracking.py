@@ -32,6 +32,29 @@ def test_missing_mode_is_lost_after_timeout_and_reacquired_with_same_id():
     assert [t.id for t in out] == [1]
 
 
+def test_at_most_max_tracked_ranked_by_contribution():
+    tr = ModeTracker(confirm_hits=1, max_tracked=2)
+    strong = [ModalParameters(f, 0.02, contribution=c, shape=np.array([1.0, 0.5], complex))
+              for f, c in ((2.0, 10.0), (4.0, 1.0), (6.0, 5.0))]
+    out = tr.update(strong, 0.0)
+    assert {t.frequency_hz: t.status for t in out} == {2.0: "tracked", 4.0: "tentative",
+                                                        6.0: "tracked"}
+    # the ranked-out mode is confirmed: when a stronger one stops, it takes its place
+    out = tr.update(strong[:2], 0.05)
+    out = tr.update(strong[:2], 2.5)
+    status = {round(t.frequency_hz, 3): t.status for t in out}
+    assert status == {2.0: "tracked", 4.0: "tracked", 6.0: "lost"}
+
+
+def test_unstable_modes_neither_open_nor_move_tracks():
+    tr = ModeTracker(confirm_hits=1)
+    tr.update([_m(2.0)], 0.0)
+    wild = _m(2.05)
+    wild.stable = False
+    out = tr.update([wild, ModalParameters(9.0, 0.02, stable=False)], 0.05)
+    assert [(t.frequency_hz, t.hits) for t in out] == [(2.0, 1)]
+
+
 def test_gates_reject_far_frequency_damping_and_shape():
     tr = ModeTracker(confirm_hits=1, frequency_gate=0.05, damping_gate=0.05, mac_gate=0.8)
     tr.update([_m(10.0, 0.02, (1.0, 1.0))], 0.0)

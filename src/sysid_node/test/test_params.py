@@ -108,3 +108,27 @@ def test_readme_table_and_config_file_show_the_defaults():
 def test_auto_block_rows_bound_the_window_and_fit_the_order(outputs, inputs, extra, rows):
     values = {**P.defaults(), **extra}
     assert P.effective_block_rows(values, outputs, inputs) == rows
+
+
+def test_online_lpv_parameters_checked_with_one_line_reasons(tmp_path):
+    """scheduling_topic / lpv_model (read-only): a missing or corrupt model file, a model
+    without its scheduling signal and a bad topic name are refused with the reason."""
+    base = P.defaults()
+    missing = str(tmp_path / "csm.lpv.npz")
+    reason = P.validate_set({**base, "scheduling_topic": "rotor_speed", "lpv_model": missing})
+    assert reason == f"LPV model file {missing} does not exist"
+    (tmp_path / "bad.npz").write_text("not an npz")
+    reason = P.validate_set({**base, "scheduling_topic": "rotor_speed",
+                             "lpv_model": str(tmp_path / "bad.npz")})
+    assert reason.startswith("cannot load LPV model from") and "\n" not in reason
+    import numpy as np
+    from sysid_node.core.lpv import LpvModel
+    from sysid_node.scenarios.csm_rotor import csm_at
+
+    good = tmp_path / "good.npz"
+    LpvModel.from_systems(np.array([32.0, 38.0]), [csm_at(32.0), csm_at(38.0)]).save(good)
+    assert "needs scheduling_topic" in P.validate_set({**base, "lpv_model": str(good)})
+    assert "scheduling_topic" in P.validate("scheduling_topic", "rotor speed")
+    assert "must differ" in P.validate_set({**base, "scheduling_topic": "vibration"})
+    assert P.validate_set({**base, "scheduling_topic": "rotor_speed"}) == ""
+    assert P.SPECS["lpv_model"].kind == P.SPECS["scheduling_topic"].kind == "read_only"

@@ -35,6 +35,7 @@ number of modes, sample rate of the identification, free text ``source``).
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -292,8 +293,9 @@ class LpvModel:
                 arrays = {k: np.array(z[k]) for k in ("points", "A", "B", "C", "D", "kind")}
                 for k in ("frequency_std", "damping_std"):
                     arrays[k] = np.array(z[k]) if k in z.files else None
-        except (OSError, KeyError, ValueError) as exc:
-            raise InputError(f"cannot load LPV model from {path}: {exc}") from None
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise InputError(f"cannot load LPV model from {path}: "
+                             f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
         if meta.get("format") != LPV_FORMAT:
             raise InputError(f"{path} is not an LPV model file (format {meta.get('format')!r})")
         if int(meta.get("version", 0)) > LPV_VERSION:

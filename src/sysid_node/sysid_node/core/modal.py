@@ -21,7 +21,17 @@ import numpy as np
 
 @dataclass
 class ModalParameters:
-    """One structural mode (a complex pole pair)."""
+    """One structural mode (a complex pole pair).
+
+    ``amplitude`` is the mode's RMS contribution to the outputs (output units). ``contribution``
+    and ``snr`` are scale-free: the mode's output variance over the innovation (noise) variance,
+    summed over the output channels, and its spectral peak over the innovation's spectral level
+    (``contribution x fs / (2 pi zeta f)``; a mode whose peak does not rise above the noise floor
+    has ``snr < 1``). ``mpc`` is the modal phase collinearity of the shape (1 = real shape; NaN
+    for one output). ``stable`` says whether the mode passed the spurious-mode tests of the
+    realization that produced it (``spurious.py``; True when none were run) and
+    ``stable_orders`` in how many of the check orders it reappeared (-1 = not checked).
+    """
 
     frequency_hz: float
     damping_ratio: float
@@ -31,6 +41,11 @@ class ModalParameters:
     shape: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=complex))
     pole_discrete: complex = complex("nan")
     pole_continuous: complex = complex("nan")
+    contribution: float = float("nan")
+    snr: float = float("nan")
+    mpc: float = float("nan")
+    stable: bool = True
+    stable_orders: int = -1
 
     def to_dict(self) -> dict:
         """JSON-friendly dict (complex numbers as [re, im])."""
@@ -38,6 +53,7 @@ class ModalParameters:
         d["shape"] = [[float(z.real), float(z.imag)] for z in np.asarray(self.shape)]
         for k in ("pole_discrete", "pole_continuous"):
             d[k] = [float(np.real(d[k])), float(np.imag(d[k]))]
+        d["stable"] = bool(d["stable"])
         return d
 
     @classmethod
@@ -49,11 +65,33 @@ class ModalParameters:
                 d[k] = complex(*d[k])
         return cls(**d)
 
+    @property
+    def rank_key(self) -> float:
+        """Ranking by contribution (scale-free), else amplitude, else light damping first."""
+        for x in (self.contribution, self.amplitude):
+            if np.isfinite(x):
+                return float(x)
+        return -abs(self.damping_ratio)
+
 
 def mac(a: np.ndarray, b: np.ndarray) -> float:
     """Modal assurance criterion |a^H b|^2 / (|a|^2 |b|^2) in [0, 1]."""
     den = float(np.vdot(a, a).real * np.vdot(b, b).real)
     return float(abs(np.vdot(a, b)) ** 2 / den) if den > 0 else 0.0
+
+
+def mpc(shapes: np.ndarray) -> np.ndarray:
+    """Modal phase collinearity of each column of ``shapes`` (l, K): ((s1 - s2) / (s1 + s2))^2
+    with s1, s2 the eigenvalues of the 2 x 2 second moment of (Re, Im); 1 for a real (normal
+    mode) shape, 0 for a circular one; NaN for a single channel."""
+    shapes = np.asarray(shapes)
+    if shapes.shape[0] < 2:
+        return np.full(shapes.shape[1], np.nan)
+    re, im = shapes.real, shapes.imag
+    sxx, syy, sxy = (re * re).sum(0), (im * im).sum(0), (re * im).sum(0)
+    tot = sxx + syy
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(tot > 0, ((sxx - syy) ** 2 + 4 * sxy**2) / tot**2, np.nan)
 
 
 def extract_modes(
@@ -65,6 +103,7 @@ def extract_modes(
     drive_cov: np.ndarray | None = None,
     a_cov_rows: np.ndarray | None = None,
     a_cov_cols: np.ndarray | None = None,
+    noise_cov: np.ndarray | None = None,
     band: tuple[float, float] | None = None,
     damping_bounds: tuple[float, float] | None = (0.0, 0.5),
     max_modes: int | None = None,
@@ -72,10 +111,13 @@ def extract_modes(
     """Modes of the discrete model (A, C) and its real continuous poles [1/s].
 
     ``b_all`` (n, q) with ``drive_cov`` (q, q) is the white drive of the states (e.g. [B K] with
-    blockdiag(cov u, cov e)) used for the amplitude; ``a_cov_rows`` / ``a_cov_cols`` are the
-    Kronecker factors of cov(vec A) for the delta method. Spurious-mode rejection: modes outside
-    ``band`` [Hz] or ``damping_bounds`` are dropped; at most ``max_modes`` are kept (largest
-    amplitude first, or lightest damping when amplitudes are unknown), sorted by frequency.
+    blockdiag(cov u, cov e)): each mode's variance is the one it would have driven alone,
+    w_k b_all drive_cov b_all' w_k^H / (1 - |mu_k|^2) (not the marginal variance of its modal
+    coordinate, which cross-correlated noise poles inflate); ``noise_cov`` (l, l) the innovation
+    covariance (output units) for ``contribution`` and ``snr``; ``a_cov_rows`` /
+    ``a_cov_cols`` are the Kronecker factors of cov(vec A) for the delta method. Modes outside
+    ``band`` [Hz] or ``damping_bounds`` are dropped; at most ``max_modes`` are kept (see
+    :func:`select_modes`), sorted by frequency. Vectorised over the modes.
     """
     n = a.shape[0]
     if n == 0:
@@ -90,42 +132,62 @@ def extract_modes(
     tol = 1e-7
     is_real = (np.abs(mu.imag) <= tol * np.maximum(1.0, np.abs(mu))) | ~np.isfinite(s_c)
     real_poles = np.sort(s_c[is_real & np.isfinite(s_c)].real)
-    modes: list[ModalParameters] = []
-    index: list[int] = []
-    phi = c @ v  # (l, n) complex shapes
-    for k in np.flatnonzero((mu.imag > 0) & ~is_real):
-        s = s_c[k]
-        rad = abs(s)
-        f = rad / (2 * np.pi)
-        zeta = -s.real / rad
-        amp = float("nan")
-        if b_all is not None and drive_cov is not None and b_all.shape[1]:
-            bk = w[k] @ b_all
-            var_z = float(np.real(bk @ drive_cov @ bk.conj())) / max(1.0 - abs(mu[k]) ** 2, 1e-12)
-            amp = float(np.sqrt(2.0 * max(var_z, 0.0)) * np.linalg.norm(phi[:, k]))
-        shape = phi[:, k].copy()
-        big = shape[np.argmax(np.abs(shape))]
-        if abs(big) > 0:
-            shape = shape / big
-        modes.append(
-            ModalParameters(
-                frequency_hz=float(f),
-                damping_ratio=float(zeta),
-                amplitude=amp,
-                shape=shape,
-                pole_discrete=complex(mu[k]),
-                pole_continuous=complex(s),
-            )
-        )
-        index.append(k)
-    selected = select_modes(modes, band, damping_bounds, max_modes)
+    sel = np.flatnonzero((mu.imag > 0) & ~is_real)
+    if sel.size == 0:
+        return [], real_poles
+    s = s_c[sel]
+    rad = np.abs(s)
+    freq = rad / (2 * np.pi)
+    zeta = -s.real / rad
+    phi = c @ v[:, sel]  # (l, K) complex shapes
+    amp = np.full(sel.size, np.nan)
+    contrib = np.full(sel.size, np.nan)
+    snr = np.full(sel.size, np.nan)
+    if b_all is not None and drive_cov is not None and b_all.shape[1]:
+        bm = w[sel] @ b_all  # (K, q): modal drive
+        var_z = np.maximum(np.real(((bm @ drive_cov) * bm.conj()).sum(axis=1)), 0.0)
+        var_z = var_z / np.maximum(1.0 - np.abs(mu[sel]) ** 2, 1e-12)
+        var_c = 2.0 * var_z[None, :] * np.abs(phi) ** 2  # (l, K): per-channel variance
+        amp = np.sqrt(var_c.sum(axis=0))
+        if noise_cov is not None:
+            floor = np.maximum(np.real(np.diag(noise_cov)), 1e-300)
+            contrib = (var_c / floor[:, None]).sum(axis=0)
+            snr = contrib * fs / (2 * np.pi * np.maximum(np.abs(zeta), 1e-6) * freq)
+    f_std = np.full(sel.size, np.nan)
+    z_std = np.full(sel.size, np.nan)
     if a_cov_rows is not None and a_cov_cols is not None:
-        for md in selected:
-            k = index[next(j for j, x in enumerate(modes) if x is md)]
-            md.frequency_std_hz, md.damping_std = _delta_std(
-                mu[k], w[k], v[:, k], a_cov_rows, a_cov_cols, fs
-            )
-    return selected, real_poles
+        f_std, z_std = _delta_std(mu[sel], w[sel], v[:, sel].T, a_cov_rows, a_cov_cols, fs)
+    big = phi[np.argmax(np.abs(phi), axis=0), np.arange(sel.size)]
+    shapes = phi / np.where(np.abs(big) > 0, big, 1.0)[None, :]
+    mpcs = mpc(shapes)
+    modes = [
+        ModalParameters(
+            frequency_hz=float(freq[k]),
+            damping_ratio=float(zeta[k]),
+            frequency_std_hz=float(f_std[k]),
+            damping_std=float(z_std[k]),
+            amplitude=float(amp[k]),
+            shape=shapes[:, k].copy(),
+            pole_discrete=complex(mu[sel[k]]),
+            pole_continuous=complex(s[k]),
+            contribution=float(contrib[k]),
+            snr=float(snr[k]),
+            mpc=float(mpcs[k]),
+        )
+        for k in range(sel.size)
+    ]
+    return select_modes(modes, band, damping_bounds, max_modes), real_poles
+
+
+def in_band(
+    md: ModalParameters,
+    band: tuple[float, float] | None,
+    damping_bounds: tuple[float, float] | None,
+) -> bool:
+    """The mode lies in ``band`` [Hz] and within ``damping_bounds``."""
+    return (band is None or band[0] <= md.frequency_hz <= band[1]) and (
+        damping_bounds is None or damping_bounds[0] <= md.damping_ratio <= damping_bounds[1]
+    )
 
 
 def select_modes(
@@ -134,39 +196,43 @@ def select_modes(
     damping_bounds: tuple[float, float] | None,
     max_modes: int | None,
 ) -> list[ModalParameters]:
-    """Spurious-mode rejection by band, damping bounds and an upper bound on the mode count."""
-    out = [
-        md
-        for md in modes
-        if (band is None or band[0] <= md.frequency_hz <= band[1])
-        and (damping_bounds is None or damping_bounds[0] <= md.damping_ratio <= damping_bounds[1])
-    ]
+    """Modes in the band and damping bounds; at most ``max_modes``, the stable ones first, then
+    by contribution (:attr:`ModalParameters.rank_key`); sorted by frequency."""
+    out = [md for md in modes if in_band(md, band, damping_bounds)]
     if max_modes is not None and len(out) > max_modes:
-        if all(np.isfinite(md.amplitude) for md in out):
-            out = sorted(out, key=lambda md: -md.amplitude)[:max_modes]
-        else:
-            out = sorted(out, key=lambda md: md.damping_ratio)[:max_modes]
+        out = sorted(out, key=lambda md: (not md.stable, -md.rank_key))[:max_modes]
     return sorted(out, key=lambda md: md.frequency_hz)
 
 
 def _delta_std(
-    mu: complex, wk: np.ndarray, vk: np.ndarray, qw: np.ndarray, pc: np.ndarray, fs: float
-) -> tuple[float, float]:
-    """First-order (delta-method) standard deviations of frequency [Hz] and damping ratio."""
-    g = np.outer(wk, vk)  # d mu = sum_ij g_ij dA_ij
-    gr, gi = g.real, g.imag
-    c_rr = float(np.sum((gr.T @ qw @ gr) * pc))
-    c_ii = float(np.sum((gi.T @ qw @ gi) * pc))
-    c_ri = float(np.sum((gr.T @ qw @ gi) * pc))
-    cov_mu = np.array([[c_rr, c_ri], [c_ri, c_ii]])
+    mu: np.ndarray, wl: np.ndarray, vr: np.ndarray, qw: np.ndarray, pc: np.ndarray, fs: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """First-order (delta-method) standard deviations of frequency [Hz] and damping ratio of
+    each eigenvalue ``mu[k]`` with left/right eigenvectors ``wl[k]``, ``vr[k]`` (w v = 1).
+
+    d mu = w' dA v = sum_ij g_ij dA_ij with g = w v' (rank one), and cov(dA_ij, dA_i'j') =
+    qw_ii' pc_jj', so every second moment of (Re d mu, Im d mu) is a sum of products of two
+    quadratic forms (x' qw x2)(y' pc y2) over Re/Im parts of w and v; vectorised over modes.
+    """
+    a, c = wl.real, wl.imag
+    b, d = vr.real, vr.imag
+    qa, qc = a @ qw, c @ qw  # quadratic forms x1[k]' m x2[k] for every k as row sums (BLAS)
+    pb, pd = b @ pc, d @ pc
+    aa, ac, cc = (qa * a).sum(1), (qa * c).sum(1), (qc * c).sum(1)
+    bb, bd, dd = (pb * b).sum(1), (pb * d).sum(1), (pd * d).sum(1)
+    # Re g = a b' - c d', Im g = a d' + c b'; sum (x1 y1')(x2 y2') qw pc = (x1'qw x2)(y1'pc y2)
+    c_rr = aa * bb - 2 * ac * bd + cc * dd
+    c_ii = aa * dd + 2 * ac * bd + cc * bb
+    c_ri = aa * bd + ac * bb - ac * dd - cc * bd
+    cov_mu = np.stack([np.stack([c_rr, c_ri], -1), np.stack([c_ri, c_ii], -1)], -2)
     cf = fs / mu  # ds = (fs / mu) d mu
-    jm = np.array([[cf.real, -cf.imag], [cf.imag, cf.real]])
+    jm = np.stack([np.stack([cf.real, -cf.imag], -1), np.stack([cf.imag, cf.real], -1)], -2)
     s = fs * np.log(mu)
     sig, om = s.real, s.imag
-    rad = abs(s)
-    jf = np.array([sig, om]) / (2 * np.pi * rad)
-    jz = np.array([-(om**2), sig * om]) / rad**3
-    cov_s = jm @ cov_mu @ jm.T
-    f_var = float(jf @ cov_s @ jf.T)
-    z_var = float(jz @ cov_s @ jz.T)
-    return float(np.sqrt(max(f_var, 0.0))), float(np.sqrt(max(z_var, 0.0)))
+    rad = np.abs(s)
+    jf = np.stack([sig, om], -1) / (2 * np.pi * rad)[:, None]
+    jz = np.stack([-(om**2), sig * om], -1) / (rad**3)[:, None]
+    cov_s = jm @ cov_mu @ np.swapaxes(jm, -1, -2)
+    f_var = (jf * (cov_s @ jf[:, :, None])[:, :, 0]).sum(axis=1)
+    z_var = (jz * (cov_s @ jz[:, :, None])[:, :, 0]).sum(axis=1)
+    return np.sqrt(np.maximum(f_var, 0.0)), np.sqrt(np.maximum(z_var, 0.0))

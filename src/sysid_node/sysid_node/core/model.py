@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -80,6 +80,17 @@ class IdentifiedModel:
         dk = np.hstack([self.D, np.zeros((self.n_outputs, self.n_outputs))])
         yhat, _ = simulate_discrete(ak, bk, self.C, dk, np.hstack([u, y]), x0)
         return yhat
+
+    def stable_predictor(self) -> IdentifiedModel:
+        """This model, or a copy whose Kalman gain K comes from the Riccati equation when the
+        stored one (the cheap K = S R^-1 of the recursive realizations) leaves A - K C
+        unstable: use it before :meth:`predict` on long records."""
+        if self.order == 0 or np.max(np.abs(np.linalg.eigvals(self.A - self.K @ self.C))) < 1.0:
+            return self
+        from .realization import kalman_gain
+
+        k, re = kalman_gain(self.A, self.C, self.Q, self.S, self.R, riccati=True)
+        return replace(self, K=k, innovation_covariance=re)
 
     def simulate(self, u: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """Free-run (deterministic part) response to u (N, n_inputs); (N, n_outputs)."""

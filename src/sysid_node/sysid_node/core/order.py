@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .realization import Projection, realize
+from .realization import Projection, ShiftBasis, realize
 
 ORDER_METHODS = ("gap", "aic", "bic", "mdl")
 
@@ -50,8 +50,9 @@ def select_order(proj: Projection, method: str = "gap", n_max: int | None = None
     lay = proj.layout
     pen = 2.0 if method == "aic" else np.log(n_eff)
     best, best_n = np.inf, 1
+    basis = ShiftBasis(proj, top)
     for n in range(1, top + 1):
-        r = realize(proj, n).R
+        r = realize(proj, n, basis).R
         sign, logdet = np.linalg.slogdet(r)
         if sign <= 0:
             continue

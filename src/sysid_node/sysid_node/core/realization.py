@@ -60,6 +60,7 @@ class Realization:
     a_cov_rows: np.ndarray  # Q_w: covariance of the state-equation residuals
     a_cov_cols: np.ndarray  # (X X')^{-1} block times the forgetting correction
     u_cov: np.ndarray  # covariance of the input (scaled units)
+    x_cov: np.ndarray  # covariance of the (A3) Kalman states: S_1 / sum w (balanced basis)
 
 
 def _lower_solve_right(lmat: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -95,7 +96,30 @@ def project(L: np.ndarray, layout: Layout, sum_w: float, sum_w2: float) -> Proje
     return Projection(layout, L, theta, u_svd, s, o_full, o_shift, sum_w, sum_w2)
 
 
-def realize(proj: Projection, n: int) -> Realization:
+class ShiftBasis:
+    """One QR of Gamma_i^- (the extended observability matrix without its last block row) for
+    the largest order needed; its leading columns serve every smaller order, because the
+    columns of Gamma_i = U_1 S_1^{1/2} are nested across orders. Realizations of several orders
+    from one projection (the multi-order stabilization) then cost one triangular solve each."""
+
+    def __init__(self, proj: Projection, top: int) -> None:
+        l = proj.layout.l
+        self.top = int(top)
+        self.gamma = proj.U[:, :top] * np.sqrt(np.maximum(proj.s[:top], 1e-300))
+        q, self.r = linalg.qr(self.gamma[:-l], mode="economic", check_finite=False)
+        self.qt_up = q.T @ self.gamma[l:]  # Q' Gamma_i^+
+        self.qt_shift = q.T @ proj.o_shift  # Q' (coefficients of the shifted states)
+
+    def a_matrix(self, n: int) -> np.ndarray:
+        """A of order n: least squares Gamma_i^- A = Gamma_i^+ on the leading n columns."""
+        return linalg.solve_triangular(self.r[:n, :n], self.qt_up[:n, :n], check_finite=False)
+
+    def shifted_states(self, n: int) -> np.ndarray:
+        """Coefficients of the shifted Kalman states X_{i+2} of order n."""
+        return linalg.solve_triangular(self.r[:n, :n], self.qt_shift[:n], check_finite=False)
+
+
+def realize(proj: Projection, n: int, basis: ShiftBasis | None = None) -> Realization:
     """Steps 3-4: Kalman states (A3) of order n and the realization (A4).
 
     A and C come from the shift invariance of the extended observability matrix
@@ -105,17 +129,19 @@ def realize(proj: Projection, n: int) -> Realization:
     converges slowly (lightly damped modes with output noise, short records: the paper's Sec. II
     example at i = 20 and 2 s of data); the shift form is not (Van Overschee & De Moor 1996,
     Sec. 4.3, their "robust" variant). The (A4) residuals give the noise covariances Q, S, R.
+    ``basis`` (a :class:`ShiftBasis` of at least order n) is reused when given.
     """
     lay = proj.layout
     m, l = lay.m, lay.l
     L = proj.L
+    if basis is None or basis.top < n:
+        basis = ShiftBasis(proj, n)
     u1 = proj.U[:, :n]
     s1 = np.maximum(proj.s[:n], 1e-300)
-    gamma = u1 * np.sqrt(s1)
     x1 = (u1.T @ proj.o_full) / np.sqrt(s1)[:, None]
-    x2 = linalg.lstsq(gamma[:-l], proj.o_shift, check_finite=False)[0]
-    a_mat = linalg.lstsq(gamma[:-l], gamma[l:], check_finite=False)[0]
-    c_mat = gamma[:l]
+    x2 = basis.shifted_states(n)
+    a_mat = basis.a_matrix(n)
+    c_mat = basis.gamma[:l, :n]
     uf1 = L[lay.uf.start : lay.uf.start + m]
     yf1 = L[lay.yf.start : lay.yf.start + l]
     tgt = np.vstack([x2 - a_mat @ x1, yf1 - c_mat @ x1])
@@ -147,7 +173,16 @@ def realize(proj: Projection, n: int) -> Realization:
         a_cov_rows=cov[:n, :n],
         a_cov_cols=p_reg[:n, :n] * factor,
         u_cov=uf1 @ uf1.T / max(proj.sum_w, 1e-300),
+        x_cov=np.diag(s1) / max(proj.sum_w, 1e-300),
     )
+
+
+def shift_poles(basis: ShiftBasis, orders: list[int]) -> list[np.ndarray]:
+    """Discrete poles (eigenvalues of A) of the realizations of several ``orders`` (each at most
+    ``basis.top``) from one projection, A by the shift invariance of Gamma_i as in
+    :func:`realize`: one triangular solve and one small eigenvalue problem per order. Used for
+    the multi-order stabilization of every realization (``spurious.py``)."""
+    return [np.linalg.eigvals(basis.a_matrix(n)) for n in orders]
 
 
 def kalman_gain(
@@ -161,13 +196,14 @@ def kalman_gain(
     """Steady-state Kalman gain K and innovation covariance for the innovation form
     x+ = A x + B u + K e, y = C x + D u + e; falls back to K = S R^{-1} (the residual
     regression: the (A3) states are Kalman states, so their residuals are K e) when the Riccati
-    equation has no stabilising solution, or when ``riccati`` is False and that cheaper gain
-    already gives a stable predictor (A - K C); otherwise the Riccati gain is used."""
+    equation has no stabilising solution, or when ``riccati`` is False (the recursive
+    realizations: no Riccati equation per realization; :meth:`IdentifiedModel.predictor` makes
+    the predictor stable when the model is used for prediction)."""
     n, l = a.shape[0], c.shape[0]
     r_reg = r + 1e-12 * max(np.trace(r) / max(l, 1), 1e-300) * np.eye(l)
     if not riccati:
         k = linalg.solve(r_reg, s.T, assume_a="pos").T
-        if np.all(np.isfinite(k)) and np.max(np.abs(np.linalg.eigvals(a - k @ c))) < 1.0:
+        if np.all(np.isfinite(k)):
             return k, r_reg
     try:
         with np.errstate(all="ignore"):

@@ -21,6 +21,7 @@ by their standard deviation over the first samples (or by given scales).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg
@@ -33,6 +34,7 @@ from .modal import ModalParameters, select_modes
 from .model import IdentifiedModel
 from .order import select_order
 from .realization import project
+from .spurious import check_orders
 
 #: The configuration validated on the paper's Sec. II example (100 Hz, 1 input, 1 output; see
 #: test_core_seed_example.py): i = 35 block rows (0.35 s of past), order 10 (at most five modes in
@@ -45,6 +47,26 @@ SEED_EXAMPLE_SETTINGS: dict = {
     "realization_interval": 5,
     "band": (0.0, 10.0),
 }
+
+
+@dataclass(frozen=True)
+class EstimatorStatus:
+    """:meth:`RecursiveDSRA.status`: ``health`` 0 ok / 1 degraded (sysid_msgs/ModalEstimate
+    HEALTH_*), ``reason`` (empty when ok) and the counters behind it."""
+
+    health: int
+    reason: str
+    outliers_rejected: int
+    level_restarts: int
+    changes_detected: int
+
+
+#: The outlier gate's reference mean squares are exponential means over this many change
+#: windows of the accepted samples (the recent normal, not the whole memory).
+GATE_REFERENCE_WINDOWS = 10
+#: Smallest reference mean square of the outlier gate (scaled units: the channels' start-up RMS
+#: is 1), (3 %)^2.
+GATE_REFERENCE_FLOOR = 1e-3
 
 
 class RecursiveDSRA:
@@ -66,6 +88,12 @@ class RecursiveDSRA:
     information is discounted by ``change_discount`` (R <- c R + (1 - c) delta I), and once more
     2i samples later (the windows that straddle the change are inconsistent with any single
     LTI model); then no new detection for one memory length. ``change_count`` counts the detections.
+
+    Outlier gate (``outlier_gate``, issue #13): see :meth:`_gate`; :meth:`status` reports the
+    estimator's health. ``stabilize`` runs the multi-order spurious-mode tests of ``spurious.py``
+    on every realization (``ModalParameters.stable``; off by default: on the paper's example
+    it delays the confirmation of a newly appeared mode beyond 1.5 s), with the tracking
+    ``frequency_gate``.
     """
 
     #: Largest number of samples queued before they are absorbed (see :meth:`update`).
@@ -94,6 +122,10 @@ class RecursiveDSRA:
         change_threshold: float = 3.0,
         change_window: int = 20,
         change_discount: float = 0.3,
+        stabilize: bool = False,
+        frequency_gate: float = 0.05,
+        outlier_gate: bool = True,
+        outlier_alpha: float = 1e-4,
     ) -> None:
         if n_outputs < 1 or n_inputs < 0:
             raise InputError(f"need n_outputs >= 1 and n_inputs >= 0, got {n_outputs}, {n_inputs}")
@@ -125,6 +157,14 @@ class RecursiveDSRA:
         self.change_threshold = float(change_threshold)
         self.change_window = int(change_window)
         self.change_discount = float(change_discount)
+        self.stabilize = bool(stabilize)
+        self.frequency_gate = float(frequency_gate)
+        self.outlier_gate = bool(outlier_gate)
+        # Markov's inequality on sum_c x_c^2 / E x_c^2: exceeded with probability <= l / t for
+        # ANY distribution (heavy tails, bursts), so t = channels / alpha is distribution-free
+        self._gate_q = (max(n_outputs, 1) / outlier_alpha, max(n_inputs, 1) / outlier_alpha)
+        self.outliers_rejected = 0  # samples rejected by the gate (never reset)
+        self.level_restarts = 0  # restarts after a sustained change of the signal level
         self.reset()
 
     # ------------------------------------------------------------------ configuration
@@ -180,6 +220,13 @@ class RecursiveDSRA:
         self.last_realization_time = float("nan")  # data time [s]
         self.last_realization_cost_s = float("nan")  # wall-clock seconds
         self._excited = False
+        # outlier gate: the last i samples (scaled, outliers replaced by their prediction),
+        # reference mean squares of the inputs and outputs, current run of rejected samples
+        self._gate_tail = np.zeros((0, self.n_inputs + self.n_outputs))
+        self._gate_ref = np.ones(self.n_inputs + self.n_outputs)
+        self._gate_run = 0
+        self._gated = 0  # samples through the gate
+        self._last_outlier = -(10**18)  # index (of the gated samples) of the latest outlier
 
     # ------------------------------------------------------------------ status
     @property
@@ -215,6 +262,30 @@ class RecursiveDSRA:
         """Abrupt changes detected (each discounted the old information)."""
         self.flush()
         return self._change_count
+
+    def status(self) -> EstimatorStatus:
+        """Health of the estimate for the ModalEstimate message (HEALTH_OK 0 / DEGRADED 1) with
+        the reason: outliers rejected within the last reference window (GATE_REFERENCE_WINDOWS
+        change windows), a restart after a new signal level until a model exists again, or an
+        excitation too low to identify."""
+        self.flush()
+        recent = GATE_REFERENCE_WINDOWS * self.change_window
+        reasons = []
+        if self._gated - self._last_outlier <= recent:
+            window = recent / self.fs
+            reasons.append(f"outliers rejected ({self.outliers_rejected} samples so far; one "
+                           f"within the last {window:g} s)")
+        if self.level_restarts and self.model is None:
+            reasons.append("signal level changed: estimator restarted")
+        if self.realizations_skipped and not self._excited and self.samples_seen:
+            reasons.append("excitation too low to identify")
+        return EstimatorStatus(
+            health=1 if reasons else 0,
+            reason="; ".join(reasons),
+            outliers_rejected=self.outliers_rejected,
+            level_restarts=self.level_restarts,
+            changes_detected=self._change_count,
+        )
 
     def modes(self) -> list[ModalParameters]:
         """Modes of the latest realization, selected with the current band/damping/max_modes."""
@@ -311,6 +382,119 @@ class RecursiveDSRA:
                     out.append(mdl)
 
     def _accumulate(self, data: np.ndarray) -> None:
+        """Gate the outliers, then absorb the rest (the window restarts after each outlier)."""
+        bad = self._gate(data) if self.outlier_gate else None
+        if bad is None or not bad.any():
+            self._accumulate_clean(data)
+            return
+        start = 0
+        for b in np.flatnonzero(bad):  # rare path
+            if b > start:
+                self._accumulate_clean(data[start:b])
+            self._tail = self._tail[:0]
+            start = b + 1
+        if start < data.shape[0]:
+            self._accumulate_clean(data[start:])
+
+    def _gate(self, data: np.ndarray) -> np.ndarray:
+        """Flag the outliers among the rows of ``data`` (scaled [u, y]).
+
+        The a-priori innovation of each output sample, e_t = y_t minus its prediction from the
+        i samples before and the input at t (the causal part of the (A2) predictor's first
+        row; the sample itself before the first realization), is compared with its reference
+        mean square, each input sample with the input's: sum_c e_c^2 / ref_c exceeds
+        l / outlier_alpha with probability at most outlier_alpha whatever the distribution
+        (Markov's inequality), so bursts of ambient excitation, heavy tails and changes of the
+        structure pass (tens to hundreds of reference levels) while spikes and bursts of
+        1e3 sigma and more are rejected. A rejected output sample is replaced by its
+        prediction (an input by 0) for the predictions that follow, so one spike rejects one
+        sample; the window restarts after it (as for NaN). References are exponential means
+        over GATE_REFERENCE_WINDOWS change windows of the accepted samples. A run of rejected
+        samples longer than that window is a new signal level, not an outlier: the estimator
+        restarts (``level_restarts``). Rejected samples never reach the change detection: a
+        spike is not a change of the structure.
+        """
+        m, l, i = self.n_inputs, self.n_outputs, self.block_rows
+        hist = np.vstack([self._gate_tail, data])
+        n0 = self._gate_tail.shape[0]
+        n = data.shape[0]
+        bad = np.zeros(n, dtype=bool)
+        ref = self._gate_ref
+        q_y, q_u = self._gate_q
+        k = 0
+        e2_all = np.zeros((n, l))
+        while k < n:
+            pred = self._gate_prediction(hist, n0 + k)
+            e2 = (hist[n0 + k :, m:] - pred) ** 2
+            e2_all[k:] = e2
+            nu_y = (e2 / ref[m:]).sum(axis=1)
+            over = nu_y > q_y
+            if m:
+                over |= (hist[n0 + k :, :m] ** 2 / ref[:m]).sum(axis=1) > q_u
+            hit = np.flatnonzero(over)
+            if hit.size == 0:
+                break
+            j = k + int(hit[0])
+            bad[j] = True
+            hist[n0 + j, m:] = pred[hit[0]]  # outlier out of the predictor's past
+            if m:
+                hist[n0 + j, :m] = 0.0
+            k = j + 1
+        good = np.hstack([hist[n0:, :m], e2_all])[~bad]  # [u, e^2]
+        good[:, :m] **= 2
+        if good.shape[0]:
+            lam = self._gate_lambda
+            w = lam ** np.arange(good.shape[0] - 1, -1, -1.0)
+            decay = lam ** good.shape[0]
+            self._gate_ref = decay * ref + (1 - lam) * (w[:, None] * good).sum(axis=0)
+            # never below (3 % of the start-up RMS)^2: after a quiet or dead stretch the
+            # signal's return is not an outlier
+            self._gate_ref = np.maximum(self._gate_ref, GATE_REFERENCE_FLOOR)
+        self._gate_tail = hist[-i:] if hist.shape[0] > i else hist
+        if bad.any():
+            self.outliers_rejected += int(bad.sum())
+            self._last_outlier = self._gated + int(np.flatnonzero(bad)[-1])
+        trailing = n - 1 - int(np.flatnonzero(~bad)[-1]) if (~bad).any() else n
+        self._gate_run = self._gate_run + n if trailing == n else trailing
+        self._gated += n
+        if self._gate_run > GATE_REFERENCE_WINDOWS * self.change_window:
+            self._restart_level()
+            return np.ones(n, dtype=bool)
+        return bad
+
+    def _restart_level(self) -> None:
+        """A run of rejected samples longer than the reference window is a new signal level
+        (a sensor gain, a unit change): start again from the new data, scales included."""
+        self.level_restarts += 1
+        seen, skipped, rejected = self.samples_seen, self._samples_skipped, self.outliers_rejected
+        self.reset()
+        self.samples_seen, self._samples_skipped = seen, skipped
+        self.outliers_rejected = rejected
+        self._su, self._sy = self._fixed_su, self._fixed_sy
+        self._last_outlier = 0
+
+    def _gate_prediction(self, hist: np.ndarray, start: int) -> np.ndarray:
+        """Causal one-step predictions of the outputs of rows ``start..`` of ``hist`` (zero
+        where fewer than i samples precede, or before the first realization)."""
+        m, l, i = self.n_inputs, self.n_outputs, self.block_rows
+        rows = hist.shape[0] - start
+        pred = np.zeros((rows, l))
+        if self._theta1 is None or start + rows <= i:
+            return pred
+        first = max(start, i)
+        past = np.lib.stride_tricks.sliding_window_view(hist[first - i : -1], i, axis=0)
+        past = past[: hist.shape[0] - first]  # (rows', m + l, i): samples t-i .. t-1
+        up = past[:, :m, :].transpose(0, 2, 1).reshape(past.shape[0], i * m)
+        yp = past[:, m:, :].transpose(0, 2, 1).reshape(past.shape[0], i * l)
+        th = self._theta1
+        npast = i * (m + l)
+        p = up @ th[:, : i * m].T + yp @ th[:, i * m : npast].T
+        if m:
+            p += hist[first:, :m] @ th[:, npast : npast + m].T
+        pred[first - start :] = p
+        return pred
+
+    def _accumulate_clean(self, data: np.ndarray) -> None:
         i = self.block_rows
         buf = np.vstack([self._tail, data])
         self._tail = buf[-(2 * i - 1) :]
@@ -410,6 +594,13 @@ class RecursiveDSRA:
         self._sum_w *= c
         self._sum_w2 *= c * c
 
+    @property
+    def _gate_lambda(self) -> float:
+        """Forgetting of the outlier gate's reference levels: the estimator's memory, but at most
+        GATE_REFERENCE_WINDOWS change windows."""
+        lam_ref = 1.0 - 1.0 / (GATE_REFERENCE_WINDOWS * self.change_window)
+        return min(self.forgetting_factor, lam_ref)
+
     @staticmethod
     def _ew_path(prev: np.ndarray, sq: np.ndarray, lam: float) -> np.ndarray:
         """p_t = lam p_{t-1} + (1 - lam) sq_t for every row t of sq (p_{-1} = prev; a NaN start
@@ -446,6 +637,8 @@ class RecursiveDSRA:
                 self.max_modes,
                 time_s=t_now,
                 riccati=False,
+                check=check_orders(n, lay.l * (lay.i - 1)) if self.stabilize else None,
+                frequency_gate=self.frequency_gate,
             )
         except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
             self.realizations_skipped += 1

@@ -11,6 +11,14 @@ may be re-acquired with the same id), and dropped after ``drop_timeout_s``. Tent
 that miss for ``lost_timeout_s`` are discarded. Reported values are exponentially smoothed over
 the hits; the standard deviations combine the delta-method value of the latest realization
 with the empirical spread of the recent raw estimates.
+
+Only modes that passed the spurious-mode tests of their realization
+(``ModalParameters.stable``, ``spurious.py``; True when none were run) are matched: the others
+never move a track nor open one. ``max_tracked`` is a contract: at most that many tracks have
+the status ``tracked`` after any update, the ones with the largest contribution (median over
+the recent hits of :attr:`~sysid_node.core.modal.ModalParameters.rank_key`); confirmed tracks
+beyond it are reported ``tentative`` until they rank among the first again (and become
+``lost``, not forgotten, when they stop).
 """
 
 from __future__ import annotations
@@ -39,6 +47,15 @@ class TrackedMode:
     history: deque = field(default_factory=lambda: deque(maxlen=20), repr=False)
     #: (frequency [Hz], damping ratio): medians of the recent raw estimates, the gate reference
     reference: tuple[float, float] = (float("nan"), float("nan"))
+    #: contribution (``ModalParameters.rank_key``) of the recent hits, for the ranking
+    ranks: deque = field(default_factory=lambda: deque(maxlen=5), repr=False)
+    #: hits reached ``confirm_hits`` (the status may still be tentative: ranked out)
+    confirmed: bool = False
+
+    @property
+    def rank(self) -> float:
+        """Median contribution over the recent hits."""
+        return float(np.median(self.ranks)) if self.ranks else -np.inf
 
     @property
     def frequency_hz(self) -> float:
@@ -55,7 +72,8 @@ class ModeTracker:
     ``frequency_gate`` relative frequency difference, ``damping_gate`` absolute damping-ratio
     difference and ``mac_gate`` minimum MAC (used when shapes have more than one component)
     bound a match, measured from the median of the last ``reference_hits`` raw estimates of the
-    track; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing).
+    track; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing);
+    ``max_tracked`` (None = no limit) bounds the number of ``tracked`` modes.
     """
 
     def __init__(
@@ -69,6 +87,7 @@ class ModeTracker:
         smoothing: float = 1.0,
         history: int = 20,
         reference_hits: int = 5,
+        max_tracked: int | None = None,
     ) -> None:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
@@ -83,6 +102,7 @@ class ModeTracker:
         self.smoothing = smoothing
         self.history = history
         self.reference_hits = max(int(reference_hits), 1)
+        self.max_tracked = max_tracked
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
 
@@ -105,8 +125,9 @@ class ModeTracker:
         return cf**2 + cz**2 + cm**2
 
     def update(self, modes: list[ModalParameters], t: float) -> list[TrackedMode]:
-        """Match ``modes`` (one realization at data time ``t`` [s]); returns the live tracks
-        (tentative, tracked and lost) sorted by frequency."""
+        """Match the stable ones of ``modes`` (one realization at data time ``t`` [s]); returns
+        the live tracks (tentative, tracked and lost) sorted by frequency."""
+        modes = [md for md in modes if md.stable]
         matched: set[int] = set()
         duplicate: set[int] = set()
         if self.tracks and modes:
@@ -132,15 +153,29 @@ class ModeTracker:
         keep = []
         for tr in self.tracks:
             age = t - tr.last_seen
-            if tr.status == "tentative" and age > self.lost_timeout_s:
+            if not tr.confirmed and age > self.lost_timeout_s:
                 continue
-            if tr.status == "tracked" and age > self.lost_timeout_s:
+            if tr.status != "lost" and age > self.lost_timeout_s:
                 tr.status = "lost"
             if tr.status == "lost" and age > self.drop_timeout_s:
                 continue
+            if tr.status != "lost":
+                tr.status = "tracked" if tr.confirmed else "tentative"
             keep.append(tr)
         self.tracks = keep
+        self._rank()
         return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
+
+    def _rank(self) -> None:
+        """The max_tracked contract: confirmed tracks beyond the strongest ones are tentative."""
+        if self.max_tracked is None:
+            return
+        live = [tr for tr in self.tracks if tr.status == "tracked"]
+        if len(live) <= self.max_tracked:
+            return
+        live.sort(key=lambda tr: (-tr.rank, tr.id))
+        for tr in live[self.max_tracked :]:
+            tr.status = "tentative"
 
     def _merge_duplicates(self) -> None:
         """Two live tracks inside each other's gate follow one physical mode: keep the older."""
@@ -178,6 +213,7 @@ class ModeTracker:
         )
         tr.hits += 1
         tr.last_seen = t
+        tr.ranks.append(md.rank_key)
         a = 1.0 if first else self.smoothing
         f = tr.mode.frequency_hz + a * (md.frequency_hz - tr.mode.frequency_hz)
         z = tr.mode.damping_ratio + a * (md.damping_ratio - tr.mode.damping_ratio)
@@ -193,5 +229,6 @@ class ModeTracker:
             frequency_std_hz=f_std,
             damping_std=z_std,
         )
-        if tr.status == "lost" or (tr.status == "tentative" and tr.hits >= self.confirm_hits):
-            tr.status = "tracked"
+        if tr.hits >= self.confirm_hits or tr.status == "lost":
+            tr.confirmed = True
+        tr.status = "tracked" if tr.confirmed else "tentative"

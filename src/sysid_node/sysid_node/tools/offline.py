@@ -2,14 +2,17 @@
 
     ros2 run sysid_node offline --bag IN --output OUT [--params-file FILE] [--report OUT.html]
 
-Reads the output (and input) topic messages of a bag in log-time order, converts each message
-with the node's own conversion and feeds :class:`sysid_node.pipeline.Pipeline`, exactly as the
-node does; publication instants come from the sample stamps, so the run is deterministic and
-matches a live replay. Writes ``/modal_estimate`` (``sysid_msgs/msg/ModalEstimate``) into the
-rosbag2 bag ``OUT``, one CSV row per mode per estimate to ``OUT.csv`` and a JSON summary to
-``OUT.json``; ``--report`` writes an HTML page (modes against time, with the truth when the bag
-has a ``<bag>.truth.json`` beside it, the final modes and the summary as tables). The parameter
-file is the node's (``sysid_node: ros__parameters: ...``).
+Reads the output (and input, and scheduling) topic messages of a bag in log-time order,
+converts each message with the node's own conversion and feeds
+:class:`sysid_node.pipeline.Pipeline`, exactly as the node does; publication instants come from
+the sample stamps, so the run is deterministic and matches a live replay (with
+``scheduling_topic``, each estimate's scheduling value and LPV-predicted modes too: they use
+only the samples stamped at or before the estimate). Writes ``/modal_estimate``
+(``sysid_msgs/msg/ModalEstimate``) into the rosbag2 bag ``OUT``, one CSV row per mode per
+estimate to ``OUT.csv`` and a JSON summary to ``OUT.json``; ``--report`` writes an HTML page
+(modes against time, with the truth when the bag has a ``<bag>.truth.json`` beside it, the
+final modes and the summary as tables). The parameter file is the node's
+(``sysid_node: ros__parameters: ...``).
 A bad bag or parameter file ends the run with a one-line reason and exit status 2.
 """
 
@@ -35,6 +38,8 @@ from sysid_node.topics import resolve
 NODE_NAME = "sysid_node"
 ESTIMATE_TOPIC = "modal_estimate"  # relative, as the node publishes it
 ESTIMATE_TYPE = "sysid_msgs/msg/ModalEstimate"
+#: Message type of the scheduling topic (as the node subscribes to it).
+SCHEDULING_TYPE = "SignalSample"
 TYPE_NAMES = {
     "sysid_msgs/msg/SignalSample": "SignalSample",
     "sysid_msgs/msg/SignalBlock": "SignalBlock",
@@ -123,6 +128,11 @@ def run(
     selected = {"output": out_topic}
     if in_topic and not v["output_only"] and in_topic in topics:
         selected["input"] = in_topic
+    sched_topic = resolve(v["scheduling_topic"], namespace) if v["scheduling_topic"] else ""
+    if sched_topic in topics:
+        selected["scheduling"] = sched_topic
+    elif sched_topic and log:
+        log(f"no scheduling topic {sched_topic} in the bag: no scheduling value, no prediction")
     kinds: dict[str, str] = {}
     for stream, topic in selected.items():
         msgtype = topics[topic][0]
@@ -132,7 +142,10 @@ def run(
                 + ", ".join(TYPE_NAMES)
             )
         kinds[topic] = TYPE_NAMES[msgtype]
-        if kinds[topic] != v[f"{stream}_type"] and log:
+        if stream == "scheduling" and kinds[topic] != SCHEDULING_TYPE:
+            raise OfflineError(f"scheduling topic {topic} in bag {bag} has type {msgtype}; "
+                               f"the node subscribes to it as {SCHEDULING_TYPE}")
+        if stream != "scheduling" and kinds[topic] != v[f"{stream}_type"] and log:
             log(f"{topic} is {kinds[topic]} in the bag ({stream}_type is {v[stream + '_type']})")
     stream_of = {t: s for s, t in selected.items()}
     axes = P.parse_axes(v["imu_axes"])
@@ -158,7 +171,7 @@ def run(
             pipeline.ingest.reject(stream, 1, "unreadable", f"{stream}: unreadable message: {err}")
             continue
         names = mc.channel_names(msg, kinds[conn.topic], axes)
-        if names != pipeline.channel_names[stream]:
+        if names != pipeline.channel_names.get(stream):
             pipeline.set_channel_names(stream, names)
         batch.append((stream, stamps, vals, tuple(names) or None))
         n += 1
@@ -182,8 +195,9 @@ def run(
 
 def _process(pipeline: Pipeline, batch: list) -> list[EstimateRecord]:
     """Feed messages as the node's worker does: per stream, stacked blocks; then one step."""
-    for stream in ("output", "input"):
-        push = pipeline.push_output if stream == "output" else pipeline.push_input
+    pushes = {"output": pipeline.push_output, "input": pipeline.push_input,
+              "scheduling": pipeline.push_scheduling}
+    for stream, push in pushes.items():
         for t, v, names in mc.stack_named([b[1:] for b in batch if b[0] == stream]):
             push(t, v, names)
     records = pipeline.step()
@@ -275,6 +289,7 @@ def summary(records: list[EstimateRecord], pipeline: Pipeline, info: dict) -> di
             else math.nan
         ),
         "counters": pipeline.counters,
+        **pipeline.scheduling_status(),
         "final": last.to_dict() if last else None,
     }
 

@@ -1,0 +1,120 @@
+"""Spurious-mode rejection for one realization: is a pole pair a physical mode or noise?
+
+An over-sized subspace model (order above twice the number of modes, as the DSRA needs when the
+noise is coloured or the mode count unknown) always returns extra pole pairs that fit the noise.
+A pole pair is kept as a *stable* (physical) mode when all of these hold:
+
+1. **Stable across model orders** (the stabilization diagram): realizations of the check orders
+   from the same projection (cheap: :func:`~sysid_node.core.realization.shift_poles`) have a
+   pole within ``STABLE_FREQUENCY_TOL`` (1 %, the classical stabilization criterion) of its
+   frequency, in every check order but at most ``STABLE_MISSES`` (one) of them. Noise poles
+   move when the order changes; physical ones do not. One miss is allowed because the lowest
+   check order (n - 4) has two pole pairs fewer than the model: a mode that has just appeared
+   (little of the memory holds it yet) or the weakest one is legitimately missing there.
+2. **Above the noise floor**: the mode's spectral peak over the innovation's spectral level
+   (``ModalParameters.snr``) exceeds what the noise alone produces somewhere in the band: the
+   periodogram of white noise has M = (band width) x (effective data length) independent
+   cells, each exponentially distributed about the floor, so its largest one exceeds
+   ln(M / alpha) only with probability alpha (``NOISE_PEAK_ALPHA`` = 1 %). A model fitted to
+   noise places poles on such fluctuations; a physical mode stands above all of them.
+3. **Above the overfit level**: a least-squares fit with r regressors to N_eff samples of pure
+   noise "explains" a fraction of it that exceeds chi2_r(1 - alpha) / N_eff only with
+   probability alpha (its R^2 is Beta(r/2, (N_eff - r)/2) distributed). The (A2) regression has
+   r = i (m + l) + i m regressors per output, so a pole pair whose variance over the innovation
+   variance (``ModalParameters.contribution``, summed over the l outputs) is below
+   l chi2_r(1 - alpha) / N_eff may be nothing but that overfit: early on (few samples, many
+   regressors) noise poles carry a real-looking share of the output.
+4. **Determined frequency**: the 99 % confidence interval of the frequency (delta-method
+   standard deviation, ``modal.py``) is narrower than the tracking gate, ``z_0.995 sigma_f / f <=
+   frequency_gate``: a mode that cannot be told apart from its neighbours cannot be tracked.
+
+Consistency over successive realizations, shape consistency (MAC) and the ranking by
+contribution are the tracker's part (``tracking.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from .modal import ModalParameters
+
+#: Relative frequency change allowed between model orders (Peeters & De Roeck 1999).
+STABLE_FREQUENCY_TOL = 0.01
+#: Two-sided 99 % quantile of the normal distribution (confidence interval of the frequency).
+Z_99 = 2.5758293035489004
+#: False-alarm probability of the noise-peak test (over the whole band).
+NOISE_PEAK_ALPHA = 0.01
+#: Check orders relative to the realized order n: the same modes must appear with two pole
+#: pairs less and two and four more (n - 4, n + 4, n + 8).
+CHECK_ORDER_STEPS = (-4, 4, 8)
+#: Check orders in which a stable mode may be missing.
+STABLE_MISSES = 1
+
+
+def check_orders(order: int, top: int) -> list[int]:
+    """The check orders for a realization of ``order``, within [2, ``top``] (``top``: the
+    largest order the block rows allow); steps that do not fit are replaced by the nearest
+    free orders below."""
+    want = len(CHECK_ORDER_STEPS)
+    out = [order + d for d in CHECK_ORDER_STEPS if 2 <= order + d <= top and d]
+    k = 2
+    while len(out) < want and order - k >= 2:
+        if order - k not in out:
+            out.append(order - k)
+        k += 2
+    return sorted(out)
+
+
+def pole_frequencies(poles: np.ndarray, fs: float) -> np.ndarray:
+    """Natural frequencies [Hz] of the complex discrete poles with positive imaginary part."""
+    mu = poles[poles.imag > 1e-7 * np.maximum(1.0, np.abs(poles))]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.abs(np.log(mu.astype(complex))) * fs / (2 * np.pi)
+    return f[np.isfinite(f)]
+
+
+def overfit_threshold(regressors: int, n_outputs: int, n_eff: float) -> float:
+    """Contribution (variance over innovation variance, summed over the outputs) that noise
+    fitted by ``regressors`` least-squares regressors per output reaches with probability
+    NOISE_PEAK_ALPHA from ``n_eff`` effective samples: l chi2_r(1 - alpha) / N_eff."""
+    q = float(stats.chi2.ppf(1.0 - NOISE_PEAK_ALPHA, max(int(regressors), 1)))
+    return n_outputs * q / max(float(n_eff), 1.0)
+
+
+def noise_peak_threshold(band_width_hz: float, duration_s: float) -> float:
+    """Largest peak-to-floor ratio that white noise reaches with probability NOISE_PEAK_ALPHA
+    over ``band_width_hz`` observed for ``duration_s`` (effective) seconds: ln(M / alpha),
+    M = band width x duration independent periodogram cells (at least 1)."""
+    cells = max(float(band_width_hz) * float(duration_s), 1.0)
+    return math.log(cells / NOISE_PEAK_ALPHA)
+
+
+def flag_spurious(
+    modes: list[ModalParameters],
+    check_frequencies: list[np.ndarray],
+    frequency_gate: float = 0.05,
+    snr_threshold: float = 1.0,
+    contribution_threshold: float = 0.0,
+) -> None:
+    """Set ``stable`` and ``stable_orders`` of each mode (in place) from the tests above;
+    ``check_frequencies`` holds the pole frequencies [Hz] of each check order,
+    ``snr_threshold`` the noise-peak level (:func:`noise_peak_threshold`),
+    ``contribution_threshold`` the overfit level (:func:`overfit_threshold`)."""
+    for md in modes:
+        f = md.frequency_hz
+        hits = sum(
+            bool(fc.size and np.min(np.abs(fc - f)) <= STABLE_FREQUENCY_TOL * f)
+            for fc in check_frequencies
+        )
+        md.stable_orders = int(hits)
+        above_floor = not math.isfinite(md.snr) or md.snr >= snr_threshold
+        above_floor &= not math.isfinite(md.contribution) or (
+            md.contribution >= contribution_threshold
+        )
+        rel_std = md.frequency_std_hz / max(f, 1e-300)
+        determined = not math.isfinite(rel_std) or Z_99 * rel_std <= frequency_gate
+        need = max(len(check_frequencies) - STABLE_MISSES, min(len(check_frequencies), 1))
+        md.stable = hits >= need and above_floor and determined

@@ -1,0 +1,178 @@
+"""Randomized identification suite (issue #10): the pipeline with DEFAULT parameters on drawn
+modal records (``scenarios.draw_modal_scenario``), scored against the truth.
+
+Only what describes the data is set: ``output_only`` for records without a measured input. Per
+draw (``DrawResult``):
+
+* ``found_by_3s`` / ``found_1pct_by_3s``: every true mode has a ``tracked`` mode within 2 % / 1 %
+  of its frequency in the estimate made after 3 s of data following the first estimate that
+  had a model (the start-up of the identification itself is counted: the first estimate comes
+  when the estimator has its first realization);
+* ``time_all_s``: data time of the first estimate with every true mode tracked within 2 %;
+* ``false_mean`` / ``false_max``: ``tracked`` modes farther than 2 % from every true mode, per
+  estimate from that first estimate on (a true mode that is still settling within 2-5 % is not
+  counted as false);
+* ``settled_share``: estimates with every true mode within 2 %, over the last quarter of the
+  record before the change (or of the whole record without one);
+* with a change (mode appearing or jumping): ``pickup_s`` the time from the change to the
+  first estimate with the new frequency tracked within 2 % (NaN if never), and
+  ``after_share`` the estimates with every true mode within 2 % from the change + ``AFTER_S``
+  to the end.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sysid_node.pipeline import Pipeline
+from sysid_node.records import EstimateRecord
+from sysid_node.scenarios import draw_modal_scenario
+
+T0_NS = 1_700_000_000 * 10**9
+#: Relative frequency tolerance of a "right" mode.
+RIGHT_TOL = 0.02
+#: A tracked mode within this of a true mode is settling, not false.
+FALSE_TOL = 0.05
+#: Data after the first estimate at which the modes are scored [s].
+BY_S = 3.0
+#: Settling allowed after a change before the share of right estimates is counted [s].
+AFTER_S = 5.0
+#: Duration of each drawn record [s] (the change, if any, at 40-60 %).
+DURATION_S = 30.0
+#: Samples per pushed message (a 100-1000 Hz sensor at 20-200 messages per second).
+BLOCK = 5
+
+
+@dataclass
+class DrawResult:
+    seed: int
+    fs: float
+    n_modes: int
+    n_outputs: int
+    output_only: bool
+    change: str
+    found_by_3s: bool
+    found_1pct_by_3s: bool
+    time_all_s: float
+    false_mean: float
+    false_max: int
+    settled_share: float
+    pickup_s: float
+    after_share: float
+    estimates: int
+
+
+def run_pipeline(scn, params: dict | None = None) -> list[EstimateRecord]:
+    """Feed a drawn record to a Pipeline (defaults unless ``params``) message by message."""
+    values = {"output_only": scn.output_only, **(params or {})}
+    pl = Pipeline(values)
+    stamps = scn.stamps_ns(T0_NS)
+    recs: list[EstimateRecord] = []
+    n = len(stamps)
+    step = BLOCK * 20  # a step every 20 messages (as a loaded node would)
+    for a in range(0, n, step):
+        for b in range(a, min(a + step, n), BLOCK):
+            sl = slice(b, min(b + BLOCK, n))
+            pl.push_output(stamps[sl], scn.y[sl])
+            if scn.u is not None:
+                pl.push_input(stamps[sl], scn.u[sl])
+        recs += pl.step()
+    return recs + pl.step(flush=True)
+
+
+def _tracked(r: EstimateRecord) -> np.ndarray:
+    return np.array([m.frequency_hz for m in r.modes if m.status == "tracked"])
+
+
+def _all_right(found: np.ndarray, truth: list[float], tol: float = RIGHT_TOL) -> bool:
+    return all(found.size and np.min(np.abs(found / f - 1)) <= tol for f in truth)
+
+
+def score(scn, recs: list[EstimateRecord], seed: int = -1) -> DrawResult:
+    """Score the estimates of one drawn record (see the module docstring)."""
+    t = np.array([(r.stamp_ns - T0_NS) * 1e-9 for r in recs])
+    has_model = np.array([r.model_order > 0 for r in recs])
+    start = t[np.argmax(has_model)] if has_model.any() else math.inf
+    ch = scn.change or {}
+    t_change = float(ch.get("time_s", math.inf))
+    duration = float(scn.t[-1])
+    right, false_counts = [], []
+    for r, tk in zip(recs, t, strict=True):
+        truth = [f for f, _ in scn.modes_at(tk)]
+        found = _tracked(r)
+        right.append(_all_right(found, truth))
+        if tk >= start:
+            far = [x for x in found if not truth or min(abs(x / f - 1) for f in truth) > FALSE_TOL]
+            false_counts.append(len(far))
+    right = np.array(right, bool)
+
+    def at(time_s: float, tol: float) -> bool:
+        k = int(np.searchsorted(t, time_s))
+        if k >= len(recs) or not np.isfinite(time_s):
+            return False
+        truth = [f for f, _ in scn.modes_at(t[k])]
+        return _all_right(_tracked(recs[k]), truth, tol)
+
+    first_right = np.flatnonzero(right & (t >= start))
+    end_ref = min(t_change, duration)
+    last_q = (t >= end_ref - 0.25 * min(end_ref, duration)) & (t < end_ref)
+    pickup, after = math.nan, math.nan
+    if ch:
+        new_f = float(ch.get("to_hz", math.nan))
+        if not np.isfinite(new_f):  # appear: the mode that exists after the change only
+            before = {round(f, 9) for f, _ in scn.modes_at(t_change - 1e-3)}
+            new = [f for f, _ in scn.modes_at(t_change + 1e-3) if round(f, 9) not in before]
+            new_f = new[0] if new else math.nan
+        hit = [tk for r, tk in zip(recs, t, strict=True) if tk >= t_change and np.isfinite(new_f)
+               and _all_right(_tracked(r), [new_f])]
+        pickup = hit[0] - t_change if hit else math.nan
+        sel = t >= t_change + AFTER_S
+        after = float(right[sel].mean()) if sel.any() else math.nan
+    return DrawResult(
+        seed=seed,
+        fs=float(scn.fs),
+        n_modes=len(scn.structure.frequencies_hz),
+        n_outputs=int(scn.y.shape[1]),
+        output_only=bool(scn.output_only),
+        change=str(ch.get("kind", "none")),
+        found_by_3s=at(start + BY_S, RIGHT_TOL),
+        found_1pct_by_3s=at(start + BY_S, 0.01),
+        time_all_s=float(t[first_right[0]]) if first_right.size else math.nan,
+        false_mean=float(np.mean(false_counts)) if false_counts else math.nan,
+        false_max=int(max(false_counts)) if false_counts else 0,
+        settled_share=float(right[last_q].mean()) if last_q.any() else math.nan,
+        pickup_s=pickup,
+        after_share=after,
+        estimates=len(recs),
+    )
+
+
+def run_draw(seed: int, duration_s: float = DURATION_S, **draw) -> DrawResult:
+    """Draw scenario ``seed`` (``numpy.random.default_rng(seed)``), run the defaults, score."""
+    scn = draw_modal_scenario(np.random.default_rng(seed), duration_s=duration_s, **draw)
+    return score(scn, run_pipeline(scn), seed)
+
+
+def summary(results: list[DrawResult]) -> dict[str, float]:
+    """Aggregate rates of the suite (the acceptance figures of issue #10)."""
+    def mean(xs):
+        xs = [x for x in xs if np.isfinite(x)]
+        return float(np.mean(xs)) if xs else math.nan
+
+    changed = [r for r in results if r.change != "none"]
+    return {
+        "draws": len(results),
+        "found_2pct_by_3s": mean([float(r.found_by_3s) for r in results]),
+        "found_1pct_by_3s": mean([float(r.found_1pct_by_3s) for r in results]),
+        "settled_share": mean([r.settled_share for r in results]),
+        "false_per_estimate_mean": mean([r.false_mean for r in results]),
+        "false_per_estimate_max": float(max((r.false_max for r in results), default=0)),
+        "changes": len(changed),
+        "pickup_rate": mean([float(np.isfinite(r.pickup_s)) for r in changed]),
+        "pickup_median_s": float(np.nanmedian([r.pickup_s for r in changed]))
+        if any(np.isfinite(r.pickup_s) for r in changed) else math.nan,
+        "after_change_share": mean([r.after_share for r in changed]),
+    }

@@ -1,0 +1,56 @@
+"""Randomized identification suite (issue #10) with DEFAULT parameters: a subset of the draws of
+``benchmarks/random_suite.py``, which runs 50+ of them and prints the table and the aggregate
+rates (definitions in ``sysid_node/suite.py``).
+
+Asserted here on every estimate of the subset: the ``max_modes`` contract (never more
+``tracked`` modes than ``max_modes``) and the searched band reported. On the easy draws
+(input-output, at most two modes) every true mode is tracked within 2 % by 3 s of data and the
+estimates stay right. Issue #10's aggregate targets (>= 90 % found, <= 0.5 false per
+estimate) are NOT met by the defaults yet; the benchmark measures them."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from sysid_node.scenarios import draw_modal_scenario
+from sysid_node.suite import run_pipeline, score
+
+from sysid_node import params as P
+
+#: The first draws of the benchmark's table that are input-output with at most two modes
+#: (seed 2: one mode at 183 Hz; seed 3: two modes at 122 Hz, one appearing at 40-60 %).
+SEEDS = (2, 3)
+DURATION_S = 30.0
+
+
+@pytest.fixture(scope="module")
+def runs():
+    out = []
+    for seed in SEEDS:
+        scn = draw_modal_scenario(np.random.default_rng(seed), duration_s=DURATION_S)
+        recs = run_pipeline(scn)
+        out.append((scn, recs, score(scn, recs, seed)))
+    return out
+
+
+@pytest.mark.slow
+def test_max_modes_is_a_contract_and_the_band_is_reported(runs):
+    limit = P.defaults()["max_modes"]
+    for scn, recs, _ in runs:
+        assert len(recs) >= 10 * DURATION_S - 2
+        for r in recs:
+            tracked = [m.frequency_hz for m in r.modes if m.status == "tracked"]
+            assert len(tracked) <= limit, (scn.fs, r.stamp_ns, tracked)
+            if r.model_order > 0:
+                assert math.isfinite(r.band_min_hz) and r.band_max_hz > r.band_min_hz
+
+
+@pytest.mark.slow
+def test_easy_draws_found_by_3_s_and_kept(runs):
+    for scn, _, res in runs:
+        assert not scn.output_only and res.n_modes <= 2
+        assert res.found_by_3s and res.settled_share >= 0.9, res
+        if res.change != "none":
+            assert res.pickup_s <= 3.0 and res.after_share >= 0.9, res
