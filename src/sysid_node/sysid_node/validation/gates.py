@@ -306,7 +306,7 @@ def missing_mode(ctx: Context, mode_peaks: list) -> Hypothesis:
         h.evidence += "model modes" + (
             f" (peaks near model modes at {', '.join(f'{f:.4g}' for f in near)} Hz)" if near else ""
         )
-        h.p_value = min(p_coh, p_peak) * 2
+        h.p_value = float(min(1.0, 2 * min(p_coh, p_peak)))
         return h
     if far and p_peak <= p_coh:
         pk = far[0]
