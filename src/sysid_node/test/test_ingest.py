@@ -47,6 +47,19 @@ def test_clean_stream_passes_unchanged_and_rate_is_measured():
     assert bad == {}
 
 
+@pytest.mark.parametrize("lost", [0.0, 0.6, 0.85])
+def test_rate_measured_when_most_samples_are_lost(lost):
+    """Lost messages make most stamp intervals 2, 3, ... periods (a busy receiver): the rate is
+    still the sensor's (their median would say half of it)."""
+    rng = np.random.default_rng(int(lost * 100))
+    t, y, _ = _data(2000, ny=1)
+    keep = rng.random(len(t)) >= lost
+    keep[:2] = True
+    ing = Ingest(use_input=False)
+    _run(ing, t[keep], y[keep])
+    assert ing.fs == pytest.approx(FS, rel=1e-6)
+
+
 def test_inputs_aligned_by_stamp_not_arrival():
     t, y, u = _data(300)
     ing = Ingest(sample_rate=FS)
