@@ -264,8 +264,10 @@ class Stream:
 
 def beyond_jump(t: np.ndarray, last: float) -> np.ndarray:
     """Samples after the first forward jump of more than FUTURE_JUMP in the stamp-sorted
-    sequence that continues from ``last`` (a block spanning many seconds is no jump)."""
-    tt = np.sort(t)
+    sequence that continues from ``last`` (a block spanning many seconds is no jump). Samples
+    at or before ``last`` (late ones in the same burst) are not part of that sequence: a late
+    block followed by the stream's next samples is no jump."""
+    tt = np.sort(t[t > last])
     step = np.diff(np.concatenate(([last], tt)))
     jumps = np.flatnonzero(step > FUTURE_JUMP)
     if not len(jumps):

@@ -155,6 +155,27 @@ def test_nan_sample_dropped_and_hole_repaired():
     assert any("NaN/Inf" in e for e in ing.events)
 
 
+def test_late_block_in_the_same_burst_as_the_next_samples_is_no_jump():
+    """A burst (the node's reader decodes several messages as one array) holding a block
+    stamped 2.5 s back (half a period off the grid) and the stream's next samples: only the
+    old block is dropped; the next samples are not mistaken for a forward clock jump (they
+    were held, then dropped as bad stamps: good data lost and a gap counted; seen in
+    sysid_node's DDS test)."""
+    t, y, u = _data(800, ny=1)
+    ing = Ingest(sample_rate=FS, use_input=True)
+    chunks = _run(ing, t[:300], y[:300], u[:300], flush=False)
+    old = np.arange(50, 60)
+    burst = np.r_[old, 300:330]
+    ing.push_output(t[300:330], y[300:330])
+    ing.push_input(t[burst] + np.isin(burst, old) * (DT // 2), u[burst])
+    chunks += ing.pop()
+    chunks += _run(ing, t[330:], y[330:], u[330:])
+    np.testing.assert_array_equal(_cat(chunks), y)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u)
+    assert ing.counters["input_late"] == 10
+    assert not ing.counters["input_bad_stamp"] and not ing.counters["gaps"]
+
+
 def test_two_second_gap_splits_data_and_is_counted():
     t, y, _ = _data(800)
     keep = np.r_[0:300, 500:800]
