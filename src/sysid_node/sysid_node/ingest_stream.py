@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .sample_period import unit_period
+
 #: A stamp within this fraction of the period of a grid instant is taken as taken at that instant.
 STAMP_TOLERANCE = 0.25
 #: Samples needed to measure a rate.
@@ -226,7 +228,7 @@ class Stream:
         d = d[d > 0]
         if len(d) < RATE_SAMPLES // 2:
             return math.nan
-        med = float(np.median(d))
+        med = unit_period(d.astype(float))  # not the median: lost samples double intervals
         # refine over the window: whole number of periods between first and last stamp
         span = float(r[-1] - r[max(0, len(r) - 513)])
         steps = round(span / med)
@@ -262,8 +264,10 @@ class Stream:
 
 def beyond_jump(t: np.ndarray, last: float) -> np.ndarray:
     """Samples after the first forward jump of more than FUTURE_JUMP in the stamp-sorted
-    sequence that continues from ``last`` (a block spanning many seconds is no jump)."""
-    tt = np.sort(t)
+    sequence that continues from ``last`` (a block spanning many seconds is no jump). Samples
+    at or before ``last`` (late ones in the same burst) are not part of that sequence: a late
+    block followed by the stream's next samples is no jump."""
+    tt = np.sort(t[t > last])
     step = np.diff(np.concatenate(([last], tt)))
     jumps = np.flatnonzero(step > FUTURE_JUMP)
     if not len(jumps):

@@ -138,6 +138,43 @@ def burst_to_blocks(
     return stack_named(blocks), errors
 
 
+def signal_msg_class(kind: str):
+    """The rclpy message class of a signal ``kind`` (SignalSample, SignalBlock or Imu)."""
+    if kind == "Imu":
+        from sensor_msgs.msg import Imu
+
+        return Imu
+    if kind not in ("SignalSample", "SignalBlock"):
+        raise ValueError(f"unsupported signal type '{kind}'")
+    from sysid_msgs import msg
+
+    return getattr(msg, kind)
+
+
+def serialized_burst_to_blocks(
+    raws: Sequence[bytes], kind: str, axes: Sequence[str] = ("az",)
+) -> tuple[list[tuple[np.ndarray, np.ndarray, tuple[str, ...] | None]], list[str]]:
+    """:func:`burst_to_blocks` of serialized messages (as a ``raw=True`` subscription takes
+    them): a burst of one byte layout decoded as one array (:mod:`sysid_node.cdr`), any other
+    deserialized message by message with rclpy (one reason per unreadable message)."""
+    from sysid_node import cdr
+
+    fast = cdr.decode_burst(raws, kind)
+    if fast is not None:
+        return [fast], []
+    from rclpy.serialization import deserialize_message
+
+    cls = signal_msg_class(kind)
+    msgs, errors = [], []
+    for raw in raws:
+        try:
+            msgs.append(deserialize_message(raw, cls))
+        except Exception as err:  # truncated or garbled bytes
+            errors.append(f"cannot deserialize {kind}: {err}")
+    blocks, bad = burst_to_blocks(msgs, kind, axes)
+    return blocks, errors + bad
+
+
 def stack_named(blocks: Sequence[tuple]) -> list[tuple[np.ndarray, np.ndarray, Any]]:
     """Blocks ``(stamps, values, channel names)``: consecutive ones with the same names and
     channel count concatenated (arrival order kept)."""

@@ -7,12 +7,16 @@ excitation (``input_topic``, default ``/excitation``); publishes ``sysid_msgs/Mo
 :class:`sysid_node.pipeline.Pipeline`, which the offline tool drives identically.
 
 Where the time goes, and how it is bounded (measured with py-spy, benchmarks/bench_node.py):
-rclpy's executor costs far more per callback than converting a message, so a subscription
-callback takes the whole burst waiting in the DDS queue (one wake-up, one conversion without a
-Python loop over the values); the burst is handed to the estimator's worker process through
+rclpy's executor costs far more per wake-up than converting a message, and building one rclpy
+message object per sample costs more than decoding it. So the data subscriptions are never
+served by the executor (their callback group refuses execution): a reader thread takes every
+message waiting on every data topic each ``POLL_S`` seconds, serialized (``raw=True``), and
+decodes each burst as one array (:mod:`sysid_node.cdr`; per message only when a burst mixes
+layouts). The executor serves only the parameter services and the diagnostics timer, which
+therefore never delay data. The burst is handed to the estimator's worker process through
 :class:`sysid_node.worker.WorkerLink` (credit-based batching, newest data first when behind);
 a receiver thread publishes what comes back. Start-up and shutdown honour any number of
-SIGINT/SIGTERM without a traceback (:func:`main`).
+SIGINT/SIGTERM without a traceback (:mod:`sysid_node.entry`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -44,8 +49,11 @@ ESTIMATE_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
-#: Messages taken from a subscription's queue per callback at most.
+#: Messages taken from a subscription's queue per poll at most.
 MAX_BURST = 5000
+#: The reader thread takes what waits on the data topics this often [s] (its latency is at
+#: most this; one wake-up per poll, whatever the message rate).
+POLL_S = 0.005
 #: Kept for callers of the old names: the node never drops data below these (see max_backlog).
 BAD_INPUT_KEYS = D.BAD_INPUT_KEYS
 
@@ -69,14 +77,18 @@ def _qos(values: dict[str, Any]) -> QoSProfile:
     )
 
 
-def _msg_class(kind: str):
-    if kind == "Imu":
-        from sensor_msgs.msg import Imu
+class _Polled(CallbackGroup):
+    """Callback group of the data subscriptions: the executor never waits on nor executes
+    them (the node's reader thread takes their messages)."""
 
-        return Imu
-    from sysid_msgs import msg
+    def can_execute(self, entity: Any) -> bool:
+        return False
 
-    return getattr(msg, kind)
+    def beginning_execution(self, entity: Any) -> bool:
+        return False
+
+    def ending_execution(self, entity: Any) -> None:
+        pass
 
 
 class SysidNode(Node):
@@ -105,6 +117,8 @@ class SysidNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.spectrum_pub = self.create_publisher(ResidualSpectrum, "residual_spectrum", 10)
         self._subs: dict[str, Any] = {}
+        self._subs_lock = threading.Lock()
+        self._polled = _Polled()
         self._subscribe(self.values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag_timer = self.create_timer(1.0 / self.values["diagnostics_rate"],
@@ -114,6 +128,8 @@ class SysidNode(Node):
         self._receiver = threading.Thread(target=self._receive_loop, name="sysid_recv",
                                           daemon=True)
         self._receiver.start()
+        self._reader = threading.Thread(target=self._read_loop, name="sysid_read", daemon=True)
+        self._reader.start()
         v = self.values
         # the names after remapping and namespace, as `ros2 topic list` shows them
         names = [self._subs[s].topic_name for s in ("output", "input") if s in self._subs]
@@ -164,66 +180,62 @@ class SysidNode(Node):
 
     # ---- subscriptions ----
     def _subscribe(self, values: dict[str, Any]) -> None:
-        for s in self._subs.values():
-            self.destroy_subscription(s)
-        self._subs = {}
-        qos = _qos(values)
-        axes = P.parse_axes(values["imu_axes"])
-        streams = [("output", values["output_topic"], values["output_type"])]
-        if values["input_topic"] and not values["output_only"]:
-            streams.append(("input", values["input_topic"], values["input_type"]))
-        if values["scheduling_topic"]:  # online LPV: to the worker like the data
-            streams.append(("scheduling", values["scheduling_topic"], "SignalSample"))
-        for stream, topic, kind in streams:
-            def callback(msg, stream=stream, kind=kind):
-                self._on_burst(stream, kind, axes, msg)
+        with self._subs_lock:
+            for s in self._subs.values():
+                self.destroy_subscription(s)
+            self._subs, self._kinds = {}, {}
+            qos = _qos(values)
+            self._axes = P.parse_axes(values["imu_axes"])
+            streams = [("output", values["output_topic"], values["output_type"])]
+            if values["input_topic"] and not values["output_only"]:
+                streams.append(("input", values["input_topic"], values["input_type"]))
+            if values["scheduling_topic"]:  # online LPV: to the worker like the data
+                streams.append(("scheduling", values["scheduling_topic"], "SignalSample"))
+            for stream, topic, kind in streams:
+                sub = self.create_subscription(mc.signal_msg_class(kind), topic, _never_called, qos,
+                                               callback_group=self._polled, raw=True)
+                self._subs[stream], self._kinds[stream] = sub, kind
 
-            self._subs[stream] = self.create_subscription(_msg_class(kind), topic, callback, qos)
+    def _read_loop(self) -> None:
+        """Every POLL_S: take what waits on each data topic (output first), convert each
+        burst, hand it to the worker. Both streams go over together (an output burst covering
+        seconds while the input waited in its queue would look like a stopped input)."""
+        next_poll = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                with self._subs_lock:
+                    bursts = [(stream, self._kinds[stream], self._take(sub))
+                              for stream, sub in self._subs.items()]
+                for stream, kind, raws in bursts:
+                    if raws:
+                        self._convert(stream, kind, raws)
+            except Exception as err:  # never lose the reader: say it and go on
+                self._warn.emit(f"reading the data topics failed: {err!r}")
+            next_poll = max(next_poll + POLL_S, time.monotonic())
+            self._stop.wait(next_poll - time.monotonic())
 
-    def _take_burst(self, stream: str, first: Any) -> list[Any]:
-        """``first`` and every message already waiting in the subscription's queue: one
-        executor wake-up per burst instead of one per message."""
-        msgs = [first]
-        sub = self._subs.get(stream)
-        if sub is None:
-            return msgs
+    @staticmethod
+    def _take(sub: Any) -> list[bytes]:
+        """Every serialized message waiting in ``sub``'s queue (at most MAX_BURST)."""
+        raws: list[bytes] = []
         try:
             with sub.handle:
-                while len(msgs) < MAX_BURST:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
+                while len(raws) < MAX_BURST:
+                    got = sub.handle.take_message(sub.msg_type, True)
                     if got is None:
                         break
-                    msgs.append(got[0])
+                    raws.append(got[0])
         except Exception:  # destroyed meanwhile (re-subscription): keep what we have
             pass
-        return msgs
+        return raws
 
-    def _on_burst(self, stream: str, kind: str, axes: list[str], first: Any) -> None:
-        """One wake-up takes what waits on every data topic, this one first: the streams go
-        to the worker together (an output burst covering seconds while the input waits in
-        its queue would look like a stopped input)."""
-        self._convert(stream, kind, axes, self._take_burst(stream, first))
-        v = self.values
-        for other in ("output", "input"):
-            sub = self._subs.get(other)
-            if other == stream or sub is None:
-                continue
-            try:
-                with sub.handle:
-                    got = sub.handle.take_message(sub.msg_type, sub.raw)
-            except Exception:
-                continue
-            if got is not None:
-                self._convert(other, v[f"{other}_type"], axes,
-                              self._take_burst(other, got[0]))
-
-    def _convert(self, stream: str, kind: str, axes: list[str], msgs: list[Any]) -> None:
-        blocks, errors = mc.burst_to_blocks(msgs, kind, axes)
+    def _convert(self, stream: str, kind: str, raws: list[bytes]) -> None:
+        blocks, errors = mc.serialized_burst_to_blocks(raws, kind, self._axes)
         if errors:
             self._arrivals[f"{stream}_unreadable"] += len(errors)
             self._warn.emit(f"{stream}: unreadable message(s), {len(errors)} dropped: "
                             f"{errors[-1]}")
-        good = len(msgs) - len(errors)
+        good = len(raws) - len(errors)
         if blocks and len(blocks[-1][0]):
             self.worker.stages.add("arrival", (time.time_ns() - int(blocks[-1][0][-1])) * 1e-9)
         self._arrivals[f"{stream}_messages"] += good
@@ -365,9 +377,15 @@ class SysidNode(Node):
         return sub.topic_name if sub is not None else ""
 
     def stop(self) -> None:
-        """Stop the receiver thread and the worker process (within about 3 s)."""
+        """Stop the reader and receiver threads and the worker process (within about 3 s)."""
         self._stop.set()
+        self._reader.join(timeout=0.5)
         self.worker.stop(timeout=1.5)
         self._receiver.join(timeout=1.0)
         self._say.flush(force=True)
         self._warn.flush(force=True)
+
+
+def _never_called(_msg: Any) -> None:
+    """Callback of the data subscriptions (the reader thread takes their messages)."""
+

@@ -390,7 +390,7 @@ class WorkerLink:
 
 class StageTimes:
     """Recent durations of each hand-off stage [s], for /diagnostics: where the latency goes.
-    arrival: sample stamp -> subscription callback (DDS and executor; wall-clock stamps only);
+    arrival: sample stamp -> taken by the node's reader (DDS and polling; wall-clock stamps only);
     waiting: in the node for the worker's credit; to_worker: pipe -> taken by the worker;
     worker: ingest + estimator per batch (worker_estimating: batches that made an estimate);
     from_worker: report -> received by the node; estimate: sample stamp -> published."""

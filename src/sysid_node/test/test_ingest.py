@@ -47,6 +47,19 @@ def test_clean_stream_passes_unchanged_and_rate_is_measured():
     assert bad == {}
 
 
+@pytest.mark.parametrize("lost", [0.0, 0.6, 0.85])
+def test_rate_measured_when_most_samples_are_lost(lost):
+    """Lost messages make most stamp intervals 2, 3, ... periods (a busy receiver): the rate is
+    still the sensor's (their median would say half of it)."""
+    rng = np.random.default_rng(int(lost * 100))
+    t, y, _ = _data(2000, ny=1)
+    keep = rng.random(len(t)) >= lost
+    keep[:2] = True
+    ing = Ingest(use_input=False)
+    _run(ing, t[keep], y[keep])
+    assert ing.fs == pytest.approx(FS, rel=1e-6)
+
+
 def test_inputs_aligned_by_stamp_not_arrival():
     t, y, u = _data(300)
     ing = Ingest(sample_rate=FS)
@@ -140,6 +153,27 @@ def test_nan_sample_dropped_and_hole_repaired():
     keep = np.setdiff1d(np.arange(200), [77, 140])
     np.testing.assert_array_equal(out[keep], y[keep])
     assert any("NaN/Inf" in e for e in ing.events)
+
+
+def test_late_block_in_the_same_burst_as_the_next_samples_is_no_jump():
+    """A burst (the node's reader decodes several messages as one array) holding a block
+    stamped 2.5 s back (half a period off the grid) and the stream's next samples: only the
+    old block is dropped; the next samples are not mistaken for a forward clock jump (they
+    were held, then dropped as bad stamps: good data lost and a gap counted; seen in
+    sysid_node's DDS test)."""
+    t, y, u = _data(800, ny=1)
+    ing = Ingest(sample_rate=FS, use_input=True)
+    chunks = _run(ing, t[:300], y[:300], u[:300], flush=False)
+    old = np.arange(50, 60)
+    burst = np.r_[old, 300:330]
+    ing.push_output(t[300:330], y[300:330])
+    ing.push_input(t[burst] + np.isin(burst, old) * (DT // 2), u[burst])
+    chunks += ing.pop()
+    chunks += _run(ing, t[330:], y[330:], u[330:])
+    np.testing.assert_array_equal(_cat(chunks), y)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u)
+    assert ing.counters["input_late"] == 10
+    assert not ing.counters["input_bad_stamp"] and not ing.counters["gaps"]
 
 
 def test_two_second_gap_splits_data_and_is_counted():

@@ -79,6 +79,9 @@ def test_estimates_carry_scheduling_value_and_predicted_modes(tmp_path):
                 and pub_s.get_subscription_count()):
             time.sleep(0.05)
         assert pub_s.get_subscription_count(), "sysid_node did not subscribe to rotor_speed"
+        # the publisher sees the match before the node's reader has matched it back: what is
+        # sent (best effort) in between is lost, so give discovery a moment to finish
+        time.sleep(1.0)
         # the scheduling samples first: none arrives after the data of its instant (a sample
         # that does is not used for that estimate, live or offline)
         for k in range(len(ts)):

@@ -155,6 +155,7 @@ def draw_hidden_effect(
     damping: tuple[float, float] = (0.005, 0.05),
     output: str = "acceleration",
     process_noise: float = 0.1,
+    min_delay_samples: float = 0.05,
 ) -> EffectScenario:
     """A record of a drawn structure with the hidden ``effect`` (one of ``effects.EFFECTS``;
     None: no effect, see :func:`draw_clean`).
@@ -168,8 +169,10 @@ def draw_hidden_effect(
       ``frequency_hz`` (mean speed), speed varying +-1-5 %;
     * parameter_varying: ``signal`` /airspeed, ``mode`` index, ``frequency_hz`` at
       ``reference`` airspeed, ``slope_hz_per_unit``;
-    * input_delay: ``delay_s`` (any value: a transport delay, by linear interpolation of the
-      input between samples) and ``samples`` (its nearest whole number of samples);
+    * input_delay: ``delay_s`` (any value from ``min_delay_samples`` / fs on: a transport
+      delay, by linear interpolation of the input between samples) and ``samples`` (its nearest
+      whole number of samples); a delay under one sample is mostly absorbed by the B and D of
+      a discrete model (validate's suite asks for at least one);
     * nonlinear_stiffness: ``channel`` 0, ``cubic`` k3 > 0 (hardening) on the sum of the modal
       displacements seen by output 0;
     * sensor_bias: ``offset``, ``drift_per_s`` (per output);
@@ -260,7 +263,8 @@ def draw_hidden_effect(
         def size_of(tau: float):
             return b.size(delayed(tau) - b.y_u), None
 
-        tau, _, _ = _secant(size_of, 1.0 / fs, target, 0.05 / fs, 0.05 + 1.0 / fs, steps=6)
+        lo = min_delay_samples / fs
+        tau, _, _ = _secant(size_of, max(1.0 / fs, lo), target, lo, 0.05 + lo + 1.0 / fs, steps=6)
         y = delayed(tau) + b.y_w
         truth.update(samples=int(round(tau * fs)), delay_s=tau)
     elif effect == "nonlinear_stiffness":

@@ -27,7 +27,7 @@ from ..core.realization import kalman_gain
 from . import residuals as rs
 from .augment import ModelSpec
 from .data import ValidationData, ValidationError
-from .models import FittedModel, data_projection, fit, shift
+from .models import FittedModel, data_projection, dominant_modes, fit, shift
 from .simulation import LinearDynamics, fit_output_error, simulate_linear, spectral_radius
 from .split import Split
 
@@ -53,6 +53,7 @@ class Candidate:
     reason: str = ""
     free_err: np.ndarray | None = field(default=None, repr=False)
     one_err: np.ndarray | None = field(default=None, repr=False)
+    reduce_from: int = 0  # realized at this order, its dominant modes kept (0: directly)
 
     def score(self, criterion: str) -> float:
         """Held-out NRMSE of the criterion's prediction (inf when it is unbounded)."""
@@ -67,6 +68,7 @@ class Candidate:
             "one_step_nrmse": _finite_or_none(self.one_step_nrmse),
             "stable": self.stable,
             "reason": self.reason,
+            "reduced_from_order": self.reduce_from or None,
         }
 
 
@@ -126,7 +128,12 @@ def _nrmse(y: np.ndarray, e: np.ndarray) -> float:
 
 
 def _score_orders(
-    data: ValidationData, inner: Split, i: int, orders: list[int], criterion: str
+    data: ValidationData,
+    inner: Split,
+    i: int,
+    orders: list[int],
+    criterion: str,
+    reduce: bool = False,
 ) -> list[Candidate]:
     """Realize every order from one projection of the fit samples, score on the held-out."""
     n_sim = int(inner.val[-1]) + 1  # nothing after the last held-out sample is needed
@@ -167,11 +174,39 @@ def _score_orders(
         s = free if criterion == "free_run" else one
         if np.isfinite(s) and s < best:
             best, best_n = s, n
+        if reduce and criterion == "free_run":
+            out += _reduced(dp, y, u, inner, n, i)
     return out
 
 
+def _reduced(dp, y: np.ndarray, u: np.ndarray, inner: Split, n: int, i: int) -> list[Candidate]:
+    """The order-n candidate keeping the dominant modes of a realization of order 2 n."""
+    big = min(2 * n, dp.max_order)
+    if big <= n:
+        return []
+    sel, yv = inner.val, y[inner.val]
+    try:
+        m = dominant_modes(dp.model(big), y, u, inner.est, n)
+    except (ValidationError, np.linalg.LinAlgError, ValueError):
+        return []
+    if spectral_radius(m.A) >= 1.0 or spectral_radius(m.A - m.K @ m.C) >= 1.0:
+        return []
+    dyn = LinearDynamics.build(m.A, m.C, y.shape[0])
+    oe = fit_output_error(dyn, y, u, inner.est)
+    free_err = yv - simulate_linear(dyn, oe.B, oe.D, u, oe.x0)[sel]
+    with np.errstate(all="ignore"):
+        one_err = yv - m.predict(y, u)[sel]
+    return [
+        Candidate(
+            i, n, _nrmse(yv, free_err), _nrmse(yv, one_err), True, "", free_err, one_err, big
+        )
+    ]
+
+
 def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[Candidate]:
-    """Candidates ranked: the parsimonious choice first, then the others by score."""
+    """Candidates ranked: the parsimonious choice first (lowest order, then a direct
+    realization, among those not significantly worse than the best), then the others by
+    score."""
     ok = [c for c in cands if np.isfinite(c.score(criterion))]
     if not ok:
         return []
@@ -187,7 +222,11 @@ def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[C
         cmp = rs.compare_errors(getattr(c, key), getattr(best, key), scale)
         if cmp.p_value >= P_WORSE:  # best is not significantly better than c
             not_worse.append(c)
-    first = min(not_worse, key=lambda c: (c.order, c.score(criterion), c.block_rows))
+    # parsimony: the lowest order, a direct realization before the dominant modes of a larger
+    # one (only chosen when the direct one is significantly worse)
+    first = min(
+        not_worse, key=lambda c: (c.order, c.reduce_from > 0, c.score(criterion), c.block_rows)
+    )
     rest = sorted((c for c in ok if c is not first), key=lambda c: c.score(criterion))
     return [first, *rest]
 
@@ -213,13 +252,14 @@ def select_baseline(
     for i in horizons(n_fit, m, l, order, block_rows, shortest):
         top = min(l * (i - 1), MAX_ORDER)
         orders = [order] if order is not None else list(range(1, top + 1))
-        cands += _score_orders(data, inner, i, orders, criterion)
+        cands += _score_orders(data, inner, i, orders, criterion, reduce=order is not None)
     scale = np.std(data.y[inner.val], axis=0)
     ranked = _choose(cands, criterion, scale)
     n_sel = inner.n_val
     spec = replace(spec, focus=criterion)
     for c in ranked:
-        fm = fit(replace(spec, order=c.order, block_rows=c.block_rows), data, split)
+        sp = replace(spec, order=c.order, block_rows=c.block_rows, reduce_from=c.reduce_from)
+        fm = fit(sp, data, split)
         if fm.stable(free_run=criterion == "free_run"):
             note = _note(c, ranked, criterion, order)
             return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
@@ -242,8 +282,9 @@ def _note(c: Candidate, ranked: list[Candidate], criterion: str, order: int | No
     what = "free-run" if criterion == "free_run" else "one-step"
     best = min(ranked, key=lambda x: x.score(criterion))
     how = "given" if order is not None else "chosen"
+    red = f", dominant modes of a realization of order {c.reduce_from}" if c.reduce_from else ""
     return (
-        f"order {c.order} ({how}), block rows {c.block_rows}: held-out {what} NRMSE "
+        f"order {c.order} ({how}{red}), block rows {c.block_rows}: held-out {what} NRMSE "
         f"{100 * c.score(criterion):.1f} % (best candidate {100 * best.score(criterion):.1f} % "
         f"at order {best.order}, block rows {best.block_rows})"
     )

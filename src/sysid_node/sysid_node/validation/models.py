@@ -25,6 +25,7 @@ from ..core.batch import model_from_projection
 from ..core.hankel import Layout, window_rows
 from ..core.inputs import InputError, validate_batch
 from ..core.lti import simulate_discrete
+from ..core.modal import ModalParameters
 from ..core.model import IdentifiedModel
 from ..core.realization import kalman_gain, project
 from .augment import LpvModel, ModelSpec, operating_points, regressors
@@ -32,10 +33,12 @@ from .data import ValidationData, ValidationError
 from .residuals import lstsq
 from .simulation import (
     LinearDynamics,
+    block_matrix,
     cubic_coordinate,
     fit_output_error,
     integrate,
     next_sample,
+    real_modal_basis,
     refine_poles,
     simulate_cubic,
     simulate_linear,
@@ -180,7 +183,7 @@ class FittedModel:
         if self.locals:
             return float(max(spectral_radius(m.A) for _, m in self.locals))
         if self.spec.feedback and self.model is not None:
-            return spectral_radius(self.model.A)  # the closed loop (joint model)
+            return spectral_radius(self.plant()[0])
         return spectral_radius(self.model.A) if self.model is not None else np.inf
 
     @property
@@ -211,6 +214,16 @@ class FittedModel:
     def reference(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Reconstructed reference r = u - controller(past y, past u) (feedback)."""
         return u - lagged(np.hstack([y, u]), self.spec.feedback_lags) @ self.controller
+
+    def plant(self) -> tuple[np.ndarray, ...]:
+        """Open-loop plant u -> y of the joint closed-loop model r -> [y; u]: the reference
+        r = Du^-1 (u - Cu x) substituted into the joint state equation (its free run uses the
+        measured input only, never the measured output)."""
+        m, l = self.model, self.n_outputs
+        cy, cu = m.C[:l], m.C[l:]
+        dy, du = m.D[:l], m.D[l:]
+        dui = np.linalg.pinv(du)
+        return m.A - m.B @ dui @ cu, m.B @ dui, cy - dy @ dui @ cu, dy @ dui
 
     # ---------------------------------------------------------------- prediction
     def additive(self, data: ValidationData) -> np.ndarray:
@@ -245,9 +258,8 @@ class FittedModel:
 
         The estimation part gives the state at the start of the validation part: no measured
         output is used after the first sample (x0 is estimated on the estimation part). A
-        closed-loop structure runs the joint model [y; u] from the reconstructed reference
-        r = u - controller(past y, past u) (the loop's external excitation; the measured output
-        enters only through the fitted controller).
+        closed-loop structure runs the plant of its joint model (:meth:`plant`) from the
+        measured input: the reconstructed reference would carry the measured output.
         """
         if data.n_inputs == 0:
             return None
@@ -256,11 +268,11 @@ class FittedModel:
         if not self.free_run_radius < 1.0:
             return np.full_like(data.y, np.nan)  # no bounded free run
         with np.errstate(all="ignore"):
-            if self.spec.feedback:  # the closed loop from the reconstructed reference
-                m = self.model
-                r = self.reference(data.y - add, u)
-                y, _ = simulate_discrete(m.A, m.B, m.C, m.D, r, self.x0)
-                y = y[:, : self.n_outputs]
+            if self.spec.feedback:  # the plant of the joint model, from the measured input
+                a, b, c, d = self.plant()
+                if spectral_radius(a) >= 1.0:
+                    return np.full_like(data.y, np.nan)
+                y, _ = simulate_discrete(a, b, c, d, u)
             elif self.locals:
                 y = self.lpv.run(data.signals[self.spec.lpv_signal], u, None)
             else:
@@ -424,6 +436,12 @@ def _fit_core(
     if spec.cubic_channel is not None:  # initial A, C and stiffness: DSRA with q as an input
         q = measured_spring_force(fm, data)[:, None]
         fm.model = identify_dsra(yc, np.hstack([ue, q]), data.fs, order, br, segs)
+        m = fm.model
+        row = cubic_coordinate(m.A, m.C[spec.cubic_channel], data.fs, spec.cubic_integrals)
+        fm.cubic_c = row / fm.cubic_scale
+    elif spec.reduce_from > order and data.n_inputs:
+        big = identify_dsra(yc, ue, data.fs, spec.reduce_from, br, segs)
+        fm.model = dominant_modes(big, yc, ue, split.est, order)
     else:
         fm.model = identify_dsra(yc, ue, data.fs, order, br, segs)
     fm.order = fm.model.order
@@ -432,8 +450,9 @@ def _fit_core(
 def _fit_lpv(
     fm: FittedModel, data: ValidationData, yc: np.ndarray, ue: np.ndarray, split: Split, order: int
 ) -> None:
-    """Local models at operating points of the scheduling signal (Sec. IV), each with B, D
-    from its own segment's simulation error, interpolated in modal coordinates (Eq. (2))."""
+    """Local models at operating points of the scheduling signal (Sec. IV), each with its poles
+    refined and B, D solved on its own segment's simulation error, interpolated in modal
+    coordinates (Eq. (2))."""
     spec = fm.spec
     if spec.lpv_signal not in data.signals:
         raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
@@ -448,9 +467,14 @@ def _fit_lpv(
     local = []
     for p, a, b in pts:
         m = identify_dsra(yc[a:b], ue[a:b], data.fs, order, spec.block_rows)
-        if data.n_inputs and spectral_radius(m.A) < 1.0:
-            dyn = LinearDynamics.build(m.A, m.C, b - a)
-            oe = fit_output_error(dyn, yc[a:b], ue[a:b], slice(0, b - a))
+        if data.n_inputs:  # poles, B, D on the segment's free run (a short segment's
+            rows = np.arange(b - a)  # subspace poles can sit outside the unit circle)
+            y_s, u_s = yc[a:b], ue[a:b]
+            ar, cr, t, _ = refine_poles(
+                m.A, m.C, y_s, rows, lambda _, v=u_s: (v, v), np.zeros(0), None, REFINE_EVALUATIONS
+            )
+            m = _to_basis(m, ar, cr, t)
+            oe = fit_output_error(LinearDynamics.build(ar, cr, b - a), y_s, u_s, rows)
             m = replace(m, B=oe.B, D=oe.D)
         local.append((p, m))
     fm.locals = local
@@ -540,11 +564,67 @@ def _refine_spring(m, data, u, q, j, rows, phi, form):
 
 def _to_basis(m: IdentifiedModel, a: np.ndarray, c: np.ndarray, t: np.ndarray) -> IdentifiedModel:
     """The model in the modal basis T with new dynamics A (C = C_old T); noise covariances
-    transformed and the Kalman gain re-solved for the new A."""
+    transformed, the Kalman gain re-solved and the modes recomputed for the new A."""
     ti = np.linalg.inv(t)
     q, s = ti @ m.Q @ ti.T, ti @ m.S
     k, re = kalman_gain(a, c, q, s, m.R)
-    return replace(m, A=a, C=c, B=ti @ m.B, K=k, Q=q, S=s, innovation_covariance=re)
+    return replace(
+        m, A=a, C=c, B=ti @ m.B, K=k, Q=q, S=s, innovation_covariance=re, modes=modes_of(a, m.fs)
+    )
+
+
+def modes_of(a: np.ndarray, fs: float) -> list[ModalParameters]:
+    """Frequency and damping of every complex pole pair of A, by frequency."""
+    lam = np.linalg.eigvals(a)
+    out = []
+    for z in lam[lam.imag > 1e-10]:
+        sc = fs * np.log(z)
+        rad = abs(sc)
+        out.append(
+            ModalParameters(
+                frequency_hz=float(rad / (2 * np.pi)),
+                damping_ratio=float(-sc.real / rad),
+                pole_discrete=complex(z),
+                pole_continuous=complex(sc),
+            )
+        )
+    return sorted(out, key=lambda md: md.frequency_hz)
+
+
+def dominant_modes(
+    m: IdentifiedModel, y: np.ndarray, u: np.ndarray, rows: np.ndarray, order: int
+) -> IdentifiedModel:
+    """The order-``order`` model keeping the modal blocks of ``m`` (complex pairs, real poles)
+    that carry most of the free run's output power (B by output error on ``rows``): a
+    subspace realization of higher order finds the structure's modes among noise modes more
+    reliably than one at the nominal order."""
+    t, eig, kinds = real_modal_basis(m.A)
+    r = np.maximum(np.abs(eig), 1e-300)
+    eig = np.where(r >= 1.0, eig / r * 0.999, eig)  # an unstable pole: pulled inside
+    ti = np.linalg.inv(t)
+    a, c = block_matrix(eig, kinds), m.C @ t
+    dyn = LinearDynamics.build(a, c, y.shape[0])
+    oe = fit_output_error(dyn, y, u, rows)
+    offsets = np.cumsum([0, *kinds])[:-1]
+    energy = []
+    for k, kind in enumerate(kinds):
+        blk = slice(offsets[k], offsets[k] + kind)
+        sub = LinearDynamics(a[blk, blk], c[:, blk], dyn.kernel[:, :, blk])
+        yk = sub.simulate(oe.B[blk], u)[rows]
+        energy.append(float(np.sum(yk**2)))
+    keep, room = [], order
+    for k in np.argsort(energy)[::-1]:
+        if kinds[k] <= room:
+            keep.append(k)
+            room -= kinds[k]
+    idx = np.concatenate([np.arange(offsets[k], offsets[k] + kinds[k]) for k in sorted(keep)])
+    ar, cr = a[np.ix_(idx, idx)], c[:, idx]
+    q, s = (ti @ m.Q @ ti.T)[np.ix_(idx, idx)], (ti @ m.S)[idx]
+    kg, re = kalman_gain(ar, cr, q, s, m.R)
+    return replace(
+        m, A=ar, B=oe.B[idx], C=cr, D=oe.D, K=kg, Q=q, S=s, innovation_covariance=re,
+        order=int(idx.size), modes=modes_of(ar, m.fs),
+    )
 
 
 def _refine_theta(

@@ -152,6 +152,18 @@ def whitened(e: np.ndarray, *others: np.ndarray, order: int = 10) -> list[np.nda
     return out
 
 
+def bartlett_factor(a: np.ndarray, b: np.ndarray, lags: int = 50) -> float:
+    """Variance inflation of a sample cross-correlation of two independent autocorrelated
+    series over the white-noise value 1/N (Bartlett): 1 + 2 sum_k rho_a(k) rho_b(k), at
+    least 1 (what prewhitening leaves of the colour)."""
+    lags = min(lags, a.size // 4)
+    if lags < 1:
+        return 1.0
+    ra = _xcorr_fft(a, a, lags)[lags + 1 :]
+    rb = _xcorr_fft(b, b, lags)[lags + 1 :]
+    return float(max(1.0, 1.0 + 2.0 * np.sum(ra * rb)))
+
+
 def higher_order_correlation(
     e: np.ndarray, z: np.ndarray, max_lag: int = 10, colored: bool = False
 ) -> tuple[np.ndarray, float, float]:
@@ -174,7 +186,7 @@ def higher_order_correlation(
         e, he3 = whitened(e, he3)
         c = _xcorr_fft(e, he3, max_lag)[max_lag:]
         n = e.size
-        q = float(n * np.sum(c**2))
+        q = float(n * np.sum(c**2)) / bartlett_factor(e, he3)
         return c, Z99 / np.sqrt(n), float(stats.chi2.sf(q, max_lag + 1))
     r = _xcorr_fft(e, he3, max_lag)[max_lag + 1 :]
     n = e.size

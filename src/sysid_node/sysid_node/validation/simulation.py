@@ -486,32 +486,3 @@ def refine_poles(
     )
     return model(sol.x), ct, t, sol.x[2 * npr :]
 
-
-def pole_sensitivity(
-    a: np.ndarray, b: np.ndarray, c: np.ndarray, x0: np.ndarray | None, v: np.ndarray
-) -> np.ndarray:
-    """d y / d(sigma_k, omega_k) of the free run y = sum C A^(t-1-s) B v_s + C A^t x0 for each
-    complex pole pair lambda_k = exp(sigma_k + i omega_k) of A, (N, l, 2 K): the output's
-    sensitivity to each mode's damping and frequency (in the modal basis, d A_k^p = p A_k^p
-    (d sigma + J d omega))."""
-    t, eig, kinds = real_modal_basis(a)
-    ti = np.linalg.inv(t)
-    am, bm, cm = block_matrix(eig, kinds), ti @ b, c @ t
-    xm = None if x0 is None else ti @ x0
-    v = np.atleast_2d(np.asarray(v, float).T).T
-    dyn = LinearDynamics.build(am, cm, v.shape[0])
-    offsets = np.cumsum([0, *kinds])[:-1]
-    p_idx = np.arange(dyn.kernel.shape[0], dtype=float)[:, None, None]
-    rot = np.array([[0.0, 1.0], [-1.0, 0.0]])
-    cols = []
-    for which in ("sigma", "omega"):
-        for k, kind in enumerate(kinds):
-            if kind != 2:
-                continue
-            blk = slice(offsets[k], offsets[k] + 2)
-            g = p_idx * dyn.kernel[:, :, blk]
-            if which == "omega":
-                g = g @ rot
-            sub = LinearDynamics(am[blk, blk], cm[:, blk], g)
-            cols.append(sub.simulate(bm[blk], v, None if xm is None else xm[blk]))
-    return np.stack(cols, axis=2) if cols else np.zeros((v.shape[0], c.shape[0], 0))

@@ -1,0 +1,51 @@
+#!/usr/bin/env python3
+"""The randomized hidden-effect suite of ``validate`` (issue #11): prints the confusion matrix
+(effect drawn vs effect ranked first), the share ranked right and the median drop of the
+validation error per effect, the clean cases' additions, every gate's false-alarm rate on the
+clean cases and the time per case.
+
+    ros2_ws/env python benchmarks/validate_suite.py [--per-effect 15] [--clean 40] [--workers 2]
+
+The same cases as ``src/sysid_node/test/test_validation_suite.py`` (seeded draws of
+``sysid_node.scenarios.draw_effects``; see ``sysid_node.validation.suite``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from sysid_node.validation import suite as S
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--per-effect", type=int, default=S.CASES_PER_EFFECT)
+    ap.add_argument("--clean", type=int, default=S.CLEAN_CASES)
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers)
+    wall = time.perf_counter() - t0
+    sm = S.summary(results)
+    print(S.confusion_table(results))
+    print(f"\n{'effect':22s} {'cases':>5s} {'right first':>12s} {'median drop':>12s}")
+    for eff, row in sm["effects"].items():
+        print(
+            f"{eff:22s} {row['cases']:5d} {100 * row['right_first']:11.0f}% "
+            f"{100 * row['median_drop']:11.0f}%"
+        )
+    print(f"\nmedian drop of the validation error over the effect cases: "
+          f"{100 * sm['median_drop']:.0f} %")
+    print(f"clean cases: {sm['clean_cases']}, nothing added in "
+          f"{100 * sm['clean_nothing_added']:.0f} % (added: {sm['clean_added'] or 'none'})")
+    print("gate false-alarm rate on the clean cases (p < 0.01 before the trial): "
+          + ", ".join(f"{g} {100 * r:.0f} %" for g, r in sm["gate_false_alarm"].items()))
+    print(f"{len(results)} cases in {wall:.0f} s on {args.workers} workers "
+          f"({sm['seconds_per_case']:.2f} s of validate per case, draws excluded)")
+    for err in sm["errors"]:
+        print("error:", err)
+
+
+if __name__ == "__main__":
+    main()

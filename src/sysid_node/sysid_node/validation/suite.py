@@ -1,0 +1,179 @@
+"""The randomized hidden-effect suite of ``validate`` (issue #11): seeded draws of every effect
+of the vocabulary and of clean records, validated with the nominal order and ``--auto``.
+
+Each case draws (``scenarios.draw_effects.draw_hidden_effect``) a structure of 1-3 modes, a
+sample rate of 100-1000 Hz, an effect size of 2-20 x the output noise and the effect's own
+parameters; the input kind cycles through white, coloured, multisine and sweep. Records hold
+:data:`CYCLES` periods of the structure's lowest mode (of the lowest frequency a missing mode or
+a line may be drawn at, half the structure's band edge), within :data:`SAMPLES` samples (short:
+the suite runs ~145 validations). An input delay is drawn from one sample on (a shorter one is
+mostly absorbed by the B and D of any discrete model).
+
+:func:`run_suite` runs the cases on worker processes; :func:`summary` gives the confusion
+matrix (effect drawn vs effect ranked first), the drop of the validation error, the clean
+cases' additions and every gate's false-alarm rate on the clean cases.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .augment import EFFECTS
+from .data import ValidationData, ValidationError
+
+CYCLES = 40  # the record holds 40 periods of the structure's lowest mode ...
+SAMPLES = (3000, 8000)  # ... within these many samples
+KINDS = ("white", "coloured", "multisine", "sweep")
+CASES_PER_EFFECT = 15
+CLEAN_CASES = 40
+SEED = 11
+
+
+@dataclass
+class CaseResult:
+    """What validate said about one drawn record."""
+
+    effect: str | None
+    seed: int
+    kind: str
+    fs: float
+    size: float
+    first: str | None  # the significant hypothesis ranked first (None: none)
+    added: list[str] = field(default_factory=list)
+    drop: float = 0.0  # relative drop of the primary validation error after --auto
+    primary: str = ""
+    status: str = ""
+    gates: dict[str, float] = field(default_factory=dict)  # gate p-values of the baseline
+    seconds: float = 0.0
+    error: str = ""
+
+
+def cases(
+    per_effect: int = CASES_PER_EFFECT, clean: int = CLEAN_CASES, seed: int = SEED
+) -> list[tuple[str | None, int, str]]:
+    """(effect, seed, input kind) of every case; kinds cycle so each effect sees all four."""
+    out = []
+    for k, eff in enumerate(EFFECTS):
+        out += [(eff, seed * 100_000 + k * 1000 + j, KINDS[j % 4]) for j in range(per_effect)]
+    out += [(None, seed * 100_000 + 99_000 + j, KINDS[j % 4]) for j in range(clean)]
+    return out
+
+
+def _data(sc) -> ValidationData:
+    sig = {k: np.interp(sc.t, ts, v) for k, (ts, v) in sc.signals.items()}
+    names = [f"y{c}" for c in range(sc.y.shape[1])]
+    return ValidationData(sc.t, sc.y, sc.u, sc.fs, names, ["u0"], sig)
+
+
+def draw(effect: str | None, seed: int, kind: str):
+    """The case's record (a draw with no room for the effect is redrawn from the next seed)."""
+    from ..scenarios.draw_effects import draw_hidden_effect
+
+    for attempt in range(20):
+        s = seed + 7919 * attempt
+        fs = float(np.exp(np.random.default_rng(s).uniform(np.log(100.0), np.log(1000.0))))
+
+        def one(duration: float, s: int = s, fs: float = fs):
+            return draw_hidden_effect(
+                effect,
+                np.random.default_rng(s + 1),
+                fs=fs,
+                excitation_kind=kind,
+                duration_s=duration,
+                min_delay_samples=2.0,
+            )
+
+        try:  # the structure is drawn first: a short draw tells its lowest mode
+            f_low = float(np.min(one(SAMPLES[0] / fs).structure.frequencies_hz))
+            if effect in ("missing_mode", "periodic_disturbance"):  # may sit an octave below
+                f_low = min(f_low, 0.5 * max(0.5, fs / 200.0))
+            n = int(np.clip(CYCLES * fs / f_low, *SAMPLES))
+            return one(n / fs)
+        except ValueError:
+            continue
+    raise RuntimeError(f"no draw of {effect} from seed {seed}")
+
+
+def run_case(case: tuple[str | None, int, str]) -> CaseResult:
+    """Validate one case with the nominal order and ``--auto``."""
+    from .workflow import Options, run_validation
+
+    effect, seed, kind = case
+    sc = draw(effect, seed, kind)
+    res = CaseResult(effect, seed, kind, sc.fs, float(sc.truth.get("size", 0.0)), None)
+    t0 = time.perf_counter()
+    try:
+        out = run_validation(_data(sc), Options(order=sc.nominal_order, auto=True))
+    except (ValidationError, ValueError, FloatingPointError, np.linalg.LinAlgError) as err:
+        res.error = f"{type(err).__name__}: {' '.join(str(err).split())}"
+        return res
+    res.seconds = time.perf_counter() - t0
+    top = out.hyps[0]
+    res.first = top.effect if top.significant else None
+    res.added = list(out.added)
+    res.drop = float(out.error_drop)
+    res.primary = out.before.primary
+    res.status = out.result()["verdict"]["status"]
+    res.gates = {h.effect: float(h.p_value) for h in out.hyps}
+    return res
+
+
+def run_suite(case_list: list | None = None, workers: int = 2) -> list[CaseResult]:
+    """Every case on ``workers`` processes (results in case order)."""
+    case_list = cases() if case_list is None else case_list
+    if workers <= 1:
+        return [run_case(c) for c in case_list]
+    with ProcessPoolExecutor(workers) as ex:
+        return list(ex.map(run_case, case_list, chunksize=1))
+
+
+def summary(results: list[CaseResult]) -> dict:
+    """Confusion matrix, right-first share and median drop per effect, clean additions, gate
+    false-alarm rates on the clean cases, time per case."""
+    rows = {}
+    for eff in EFFECTS:
+        rs_ = [r for r in results if r.effect == eff]
+        if not rs_:
+            continue
+        firsts = Counter(r.first or "none" for r in rs_)
+        rows[eff] = {
+            "cases": len(rs_),
+            "right_first": sum(r.first == eff for r in rs_) / len(rs_),
+            "median_drop": float(np.median([r.drop for r in rs_])),
+            "ranked_first": dict(firsts),
+        }
+    clean = [r for r in results if r.effect is None]
+    gates = {
+        g: float(np.mean([r.gates.get(g, 1.0) < 0.01 for r in clean])) if clean else 0.0
+        for g in EFFECTS
+    }
+    effect_cases = [r for r in results if r.effect is not None]
+    return {
+        "effects": rows,
+        "median_drop": float(np.median([r.drop for r in effect_cases])) if effect_cases else 0.0,
+        "clean_cases": len(clean),
+        "clean_nothing_added": float(np.mean([not r.added for r in clean])) if clean else 1.0,
+        "clean_added": dict(Counter("+".join(r.added) for r in clean if r.added)),
+        "gate_false_alarm": gates,
+        "seconds_per_case": float(np.mean([r.seconds for r in results])),
+        "errors": [f"{r.effect} {r.seed}: {r.error}" for r in results if r.error],
+    }
+
+
+def confusion_table(results: list[CaseResult]) -> str:
+    """Effect drawn (rows) against the effect ranked first (columns), as text."""
+    cols = [*EFFECTS, "none"]
+    head = f"{'drawn / ranked first':22s}" + "".join(f"{c[:9]:>10s}" for c in cols)
+    lines = [head]
+    for eff in [*EFFECTS, None]:
+        rs_ = [r for r in results if r.effect == eff]
+        if not rs_:
+            continue
+        cnt = Counter(r.first or "none" for r in rs_)
+        lines.append(f"{eff or 'clean':22s}" + "".join(f"{cnt.get(c, 0):10d}" for c in cols))
+    return "\n".join(lines)

@@ -1,0 +1,93 @@
+"""The randomized, seeded hidden-effect suite of validate (issue #11; sysid_node.validation.suite):
+15 draws per effect and 40 clean ones (1-3 modes, 100-1000 Hz, white / coloured / multisine /
+sweep input, effect size 2-20 x the output noise), each validated with the nominal order and
+--auto on two worker processes. ``benchmarks/validate_suite.py`` prints the same figures.
+
+Asserted: clean records get nothing added (>= 95 %), every gate's false-alarm rate on them,
+and the per-effect levels reached so far. The issue's target (the right effect first in >= 90 %
+of every effect's cases, a median drop >= 60 %) is not reached for every effect yet: the
+xfail test below says which and by how much.
+"""
+
+from __future__ import annotations
+
+import pytest
+from sysid_node.validation import suite as S
+
+#: Levels reached when this suite was written, one case (1/15) below the measured share so
+#: that another CPU's rounding may move one case (a regression beyond that fails). Measured
+#: (benchmarks/validate_suite.py): missing_mode 7/15, periodic_disturbance 14/15,
+#: parameter_varying 1/15, input_delay 6/15, nonlinear_stiffness 1/15, sensor_bias 14/15,
+#: feedback 1/15.
+RIGHT_FIRST_FLOOR = {
+    "missing_mode": 0.4,
+    "periodic_disturbance": 0.85,
+    "parameter_varying": 0.0,
+    "input_delay": 0.33,
+    "nonlinear_stiffness": 0.0,
+    "sensor_bias": 0.85,
+    "feedback": 0.0,
+}
+#: Median drop of the validation error reached (measured 70 % and 40 %), with room.
+MEDIAN_DROP_FLOOR = {"periodic_disturbance": 0.5, "sensor_bias": 0.25, "input_delay": 0.2}
+GATE_FALSE_ALARM_MAX = 0.2  # before the trial; the trial's held-out test keeps additions out
+
+
+@pytest.fixture(scope="session")
+def suite_results():
+    return S.run_suite(S.cases(), workers=2)
+
+
+@pytest.fixture(scope="session")
+def suite_summary(suite_results):
+    sm = S.summary(suite_results)
+    print("\n" + S.confusion_table(suite_results))
+    for eff, row in sm["effects"].items():
+        print(f"{eff:22s} right first {100 * row['right_first']:5.1f} %, "
+              f"median drop {100 * row['median_drop']:5.1f} %")
+    print(f"clean: nothing added in {100 * sm['clean_nothing_added']:.1f} %; gate false "
+          "alarms: " + ", ".join(f"{g} {100 * r:.0f} %" for g, r in sm["gate_false_alarm"].items()))
+    return sm
+
+
+@pytest.mark.slow
+def test_suite_runs_every_case(suite_results, suite_summary):
+    assert len(suite_results) == 7 * S.CASES_PER_EFFECT + S.CLEAN_CASES
+    assert not suite_summary["errors"]
+    kinds = {r.kind for r in suite_results}
+    assert kinds == set(S.KINDS)
+    assert min(r.fs for r in suite_results) >= 100 and max(r.fs for r in suite_results) <= 1000
+
+
+@pytest.mark.slow
+def test_clean_records_get_nothing_added(suite_summary):
+    assert suite_summary["clean_nothing_added"] >= 0.95
+
+
+@pytest.mark.slow
+def test_gate_false_alarm_rates_on_clean_records(suite_summary):
+    for gate, rate in suite_summary["gate_false_alarm"].items():
+        assert rate <= GATE_FALSE_ALARM_MAX, gate
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", [e for e, v in RIGHT_FIRST_FLOOR.items() if v > 0])
+def test_effect_ranked_first_at_least_as_often_as_before(suite_summary, effect):
+    assert suite_summary["effects"][effect]["right_first"] >= RIGHT_FIRST_FLOOR[effect]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", list(MEDIAN_DROP_FLOOR))
+def test_error_falls_after_adding_the_effect(suite_summary, effect):
+    assert suite_summary["effects"][effect]["median_drop"] >= MEDIAN_DROP_FLOOR[effect]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    reason="issue #11 target not reached for every effect yet (see the note)", strict=True
+)
+def test_issue_target_right_first_90_percent_and_median_drop_60_percent(suite_summary):
+    short = {e: r["right_first"] for e, r in suite_summary["effects"].items()
+             if r["right_first"] < 0.9}
+    assert not short, f"below 90 %: {short}"
+    assert suite_summary["median_drop"] >= 0.6
