@@ -112,6 +112,13 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("tracking_lost_timeout", float, 2.0,
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
        unit="s"),
+    _p("tracking_drop_timeout", float, 30.0,
+       "Time without a match after which a lost mode leaves the estimate [s]", lo=0.0,
+       hi=3600.0, unit="s"),
+    _p("spurious_rejection", bool, True,
+       "Track only modes that pass the spurious-mode tests of each realization (stable across "
+       "model orders, above the noise peak and overfit levels, determined frequency; "
+       "core/spurious.py); false = every mode in the band is a candidate"),
     # -- topics and QoS (structural: the node subscribes again) --
     _p("output_topic", str, "vibration",
        "Topic of the measured responses (outputs); relative names follow the node's namespace",

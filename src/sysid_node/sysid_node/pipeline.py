@@ -124,6 +124,8 @@ class Pipeline:
             band=(fmin, fmax),
             damping_bounds=(v["damping_min"], v["damping_max"]),
             max_modes=v["max_modes"],
+            stabilize=v["spurious_rejection"],
+            frequency_gate=v["tracking_frequency_tolerance"],
         )
         self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
         self._recent = _Recent(int(RESIDUAL_WINDOW_S * fs) if np.isfinite(fs) else 0)
@@ -146,6 +148,7 @@ class Pipeline:
             "frequency_gate": v["tracking_frequency_tolerance"],
             "confirm_hits": v["tracking_confirm_count"],
             "lost_timeout_s": v["tracking_lost_timeout"],
+            "drop_timeout_s": v["tracking_drop_timeout"],
             "max_tracked": v["max_modes"],
         }
 
@@ -405,8 +408,10 @@ class Pipeline:
         self._samples += len(c)
 
     def _track(self, modes: list, t: float) -> None:
-        """Spurious-mode rejection with the current (live) band, bounds and mode count, then
-        the tracker."""
+        """The current (live) band, bounds and mode count, then the tracker (which matches only
+        the modes that passed the spurious-mode tests: ``spurious_rejection``). At most
+        ``max_modes`` candidates: the stable ones first, then by contribution (scale-free, the
+        tracker's ranking; :func:`~sysid_node.core.modal.select_modes`)."""
         v = self.values
         fmin, fmax = P.effective_band(v, self.identification_rate)
         modes = [
@@ -414,7 +419,8 @@ class Pipeline:
             if fmin <= m.frequency_hz <= fmax
             and v["damping_min"] <= m.damping_ratio <= v["damping_max"]
         ]
-        modes = sorted(modes, key=lambda m: -_finite(m.amplitude))[: v["max_modes"]]
+        modes = sorted(modes, key=lambda m: (not getattr(m, "stable", True),
+                                             -_finite(_rank_key(m))))[: v["max_modes"]]
         self._tracked = self.tracker.update(modes, t)
 
     def pop_spectra(self) -> list[SpectrumRecord]:
@@ -535,6 +541,7 @@ class Pipeline:
                 (("frequency_gate", "frequency_tolerance"), "tracking_frequency_tolerance"),
                 (("confirm_hits", "confirm_count"), "tracking_confirm_count"),
                 (("lost_timeout_s", "lost_timeout"), "tracking_lost_timeout"),
+                (("drop_timeout_s",), "tracking_drop_timeout"),
             ):
                 for n in names:
                     if hasattr(self.tracker, n):
@@ -542,6 +549,10 @@ class Pipeline:
                         break
         if est is None:
             return
+        if "spurious_rejection" in changes and hasattr(est, "stabilize"):
+            est.stabilize = bool(v["spurious_rejection"])
+        if "tracking_frequency_tolerance" in changes and hasattr(est, "frequency_gate"):
+            est.frequency_gate = float(v["tracking_frequency_tolerance"])
         if {"forgetting_factor", "memory_time_constant"} & changes.keys():
             est.set_forgetting_factor(P.effective_lambda(v, fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
@@ -602,6 +613,12 @@ def _model_order(est: Any) -> int:
     if model is not None and getattr(model, "A", None) is not None:
         return int(np.asarray(model.A).shape[0])
     return 0
+
+
+def _rank_key(m: Any) -> float:
+    """The mode's ranking value (``ModalParameters.rank_key``: contribution, else amplitude)."""
+    key = getattr(m, "rank_key", None)
+    return float(key) if key is not None else float(_get(m, "amplitude"))
 
 
 def _finite(x: float) -> float:

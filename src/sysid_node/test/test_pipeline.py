@@ -233,3 +233,35 @@ def test_residual_spectrum_shows_what_the_model_misses(paper, order):
         else:
             assert ratio.max() <= 8.0, (_t(s), peak)
     assert Pipeline({"residual_spectrum_rate": 0.0}).pop_spectra() == []
+
+
+def _noise_run(values: dict) -> list[EstimateRecord]:
+    """20 s of white noise on one output at 200 Hz (output-only): no mode at all."""
+    rng = np.random.default_rng(5)
+    y = rng.standard_normal((4000, 1))
+    stamps = T0 + np.round(np.arange(4000) / 200.0 * 1e9).astype(np.int64)
+    return _run(Pipeline({"output_only": True, **values}), stamps, None, y)
+
+
+def test_spurious_rejection_keeps_noise_modes_out_of_tracked():
+    """Defaults (``spurious_rejection`` on): the noise poles of the over-sized model never
+    become ``tracked``; with the tests off the tracker confirms some of them (the test can
+    fail)."""
+    def tracked(recs):
+        return [len([m for m in r.modes if m.status == "tracked"]) for r in recs]
+
+    on = tracked(_noise_run({}))
+    off = tracked(_noise_run({"spurious_rejection": False}))
+    assert len(on) >= 190 and max(on) == 0, max(on)
+    assert np.mean(off) > 0.5, np.mean(off)
+
+
+def test_spurious_rejection_and_drop_timeout_are_live(paper):
+    stamps, u, y = paper
+    pl = Pipeline()
+    _run(pl, stamps[:300], u[:300], y[:300])
+    assert pl.estimator.stabilize and pl.tracker.drop_timeout_s == 30.0
+    assert pl.set_parameters({"spurious_rejection": False, "tracking_drop_timeout": 5.0}) == ""
+    assert not pl.estimator.stabilize and pl.tracker.drop_timeout_s == 5.0
+    assert pl.set_parameters({"tracking_frequency_tolerance": 0.03}) == ""
+    assert pl.estimator.frequency_gate == 0.03 and pl.tracker.frequency_gate == 0.03
