@@ -2,13 +2,15 @@
 whether the frequency / damping standard deviations it is built on are calibrated.
 
     ros2_ws/env python benchmarks/notch_width_budget.py DIR [DIR ...] [--age 0.1]
-        [--estimates BAG [BAG ...]] [--damping-window S]
+        [--estimates BAG [BAG ...]] [--damping-window S] [--delay S]
 
 ``DIR`` is the ``--out`` directory of a ``benchmarks/notch_drift_figures.py`` run (its bag,
 truth, YAML and recording); ``--estimates`` takes the estimates from other bags instead (one per
 ``DIR``, e.g. ``sysid_node``'s ``offline`` output on ``DIR/drifting_mode``: deterministic, no
-DDS); ``--damping-window`` tries a damping median over a window of its own. Offline, no DDS: the recorded ``/modal_estimate`` messages are fed
-to the notch policy's mode model (:mod:`notch_filter_node.smoothing`, the window the node uses)
+DDS); ``--damping-window`` tries a damping median over a window of its own, ``--delay`` a mode
+model extrapolated by its drift rate times that delay (an identification that lags its stamp).
+Offline, no DDS: the recorded ``/modal_estimate`` messages are fed to the notch policy's mode
+model (:mod:`notch_filter_node.smoothing`, the window the node uses)
 for the estimate that tracks the true mode, and at every estimate after the first tracking one
 plus ``fade_time``:
 
@@ -75,7 +77,8 @@ def read_estimates(out: Path, recorded: Path | None = None) -> tuple[list[tuple]
     return rows, t0
 
 
-def series(out: Path, recorded: Path | None = None, damping_window: float | None = None) -> dict:
+def series(out: Path, recorded: Path | None = None, damping_window: float | None = None,
+           delay: float = 0.0) -> dict:
     """The tracking mode's raw estimates and mode models, with the truth, per estimate."""
     truth = json.loads((out / "drifting_mode.truth.json").read_text())
     cfg = {**NP.defaults(), **yaml.safe_load((out / "params.yaml").read_text())[
@@ -106,8 +109,9 @@ def series(out: Path, recorded: Path | None = None, damping_window: float | None
             mz = SM.model(*h[h[:, 0] >= t - zwin].T, zwin)
             mm = SM.ModeModel(mm.frequency, mm.frequency_std, mz.damping, mz.damping_std,
                               mm.drift, mm.drift_std, mm.n_eff)
-        rec.append((t, m[2], m[3], m[4], m[5], mm.frequency, mm.frequency_std, mm.damping,
-                    mm.damping_std, abs(mm.drift) + cfg["sigma_k"] * mm.drift_std))
+        rec.append((t, m[2], m[3], m[4], m[5], mm.frequency + mm.drift * delay,
+                    mm.frequency_std, mm.damping, mm.damping_std,
+                    abs(mm.drift) + cfg["sigma_k"] * mm.drift_std))
     a = np.array(rec, dtype=float)
     ft, zt = _truth_at(truth, a[:, 0])
     return {"cfg": cfg, "fs": truth["sample_rate_hz"], "t": a[:, 0], "f_true": ft, "z_true": zt,
@@ -180,9 +184,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--estimates", type=Path, nargs="*",
                     help="per DIR: another bag with /modal_estimate (sysid offline output)")
     ap.add_argument("--damping-window", type=float, help="[s] damping median window")
+    ap.add_argument("--delay", type=float, default=0.0, help="[s] extrapolate the model by it")
     args = ap.parse_args(argv)
     for i, d in enumerate(args.dirs):
-        s = series(d, args.estimates[i] if args.estimates else None, args.damping_window)
+        s = series(d, args.estimates[i] if args.estimates else None, args.damping_window,
+                   args.delay)
         print(f"{d}: {s['t'].size} estimates, f {s['f_true'].min():.2f}-{s['f_true'].max():.2f}"
               f" Hz, zeta {100 * s['z_true'][0]:.2f} %, fs {s['fs']:g} Hz")
         print(f"  {'(estimate - truth) / std':<28}{'n':>5}{'mean':>8}{'std':>8}{'>1.96':>8}"
