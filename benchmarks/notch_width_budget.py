@@ -26,7 +26,12 @@ plus ``fade_time``:
    - ``+ damping``: damping up to ``zeta + damping_sigma_k * sigma_zeta``;
    - ``+ frequency``: ``+- sigma_k * sigma_f``;
    - ``+ age``: ``+- drift bound * (age + design_horizon)`` (``--age``: the estimate age);
-   - ``box``: the whole damping interval at every frequency (no joint region).
+   - ``box``: the whole damping interval at every frequency (no joint region);
+   - ``chance P`` (``--chance P ...``): no region at all, the narrowest notch whose peak
+     reduction meets the requirement with probability ``P`` when frequency and damping are
+     independent Gaussians of the model's stds (cells of a 33 x 33 grid over +-4.5 stds, the
+     worst of the two drift shifts ``+- drift bound * (age + design_horizon)``), on every
+     ``--every``-th estimate: what an exact chance constraint would save over the region.
 
 The figures depend on the recording; the script tunes nothing.
 """
@@ -177,6 +182,58 @@ def budget(s: dict, age: float) -> list[tuple[str, float, float]]:
     return rows
 
 
+def _cells(n: int = 33, span: float = 4.5) -> tuple[np.ndarray, np.ndarray]:
+    """Standard normal nodes and the probability of the cell around each (ends: the tails)."""
+    from scipy.special import ndtr
+
+    u = np.linspace(-span, span, n)
+    edges = np.concatenate([[-np.inf], 0.5 * (u[1:] + u[:-1]), [np.inf]])
+    return u, np.diff(ndtr(edges))
+
+
+def failure_probability(center, zp, f, sf, shift, z, sz, cfg, fs) -> float:
+    """P(peak reduction < required) of one notch for a Gaussian mode (worst over shifts)."""
+    u, w = _cells()
+    g = 10.0 ** (-cfg["depth"] / 20.0)
+    ww = np.outer(w, w)
+    worst = 0.0
+    for sh in shift:
+        fm, zm = np.meshgrid(f + sh + u * sf, np.maximum(z + u * sz, R.ZETA_FLOOR),
+                             indexing="ij")
+        pr = R.peak_reduction_db(fm, zm, np.array([center]), np.array([zp]),
+                                 np.array([g * zp]), fs, cfg["depth"] + 6.0)
+        worst = max(worst, float(np.sum(ww[pr < cfg["peak_reduction"]])))
+    return worst
+
+
+def chance_rows(s: dict, age: float, probs: list[float], every: int) -> list[tuple]:
+    cfg, fs = s["cfg"], s["fs"]
+    xo = cfg["crossover_frequency"]
+    idx = np.arange(0, s["t"].size, max(every, 1))
+    f_t, z_t = s["f_true"][idx], s["z_true"][idx]
+    base = lag_of(f_t, narrowest(f_t, f_t, f_t, z_t, z_t, cfg, fs), cfg["depth"], fs, xo)
+    rows = []
+    for p in probs:
+        lags, bws = [], []
+        for i in idx:
+            f, sf, z, sz = s["mf"][i], s["msf"][i], s["mz"][i], s["msz"][i]
+            ha = max(s["drift"][i], cfg["drift_rate_min"] * f) * (age + cfg["design_horizon"])
+            lo, hi = np.log(1e-4), np.log(1.0)
+            for _ in range(16):  # bisection on log zp: about 1 % of zp
+                mid = 0.5 * (lo + hi)
+                if failure_probability(f, np.exp(mid), f, sf, (-ha, ha), z, sz, cfg,
+                                       fs) <= 1.0 - p:
+                    hi = mid
+                else:
+                    lo = mid
+            lags.append(float(lag_of(f, np.exp(hi), cfg["depth"], fs, xo)))
+            bws.append(float(S.bandwidth_from_zp(f, np.exp(hi), cfg["depth"], fs)))
+        lags = np.array(lags)
+        rows.append((f"chance {p:g} (every {every}th)", float(np.median(lags)),
+                     float(np.median(lags / base)), float(np.median(bws))))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dirs", nargs="+", type=Path)
@@ -185,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="per DIR: another bag with /modal_estimate (sysid offline output)")
     ap.add_argument("--damping-window", type=float, help="[s] damping median window")
     ap.add_argument("--delay", type=float, default=0.0, help="[s] extrapolate the model by it")
+    ap.add_argument("--chance", type=float, nargs="*", default=[],
+                    help="chance-constrained designs at these probabilities (slow)")
+    ap.add_argument("--every", type=int, default=5, help="--chance on every n-th estimate")
     args = ap.parse_args(argv)
     for i, d in enumerate(args.dirs):
         s = series(d, args.estimates[i] if args.estimates else None, args.damping_window,
@@ -197,7 +257,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {name:<28}{c['n']:>5}{c['mean']:>8.2f}{c['std']:>8.2f}"
                   f"{c['beyond_1.96']:>8.2f}{c['median_rel_std']:>11.4f}")
         print(f"  {'region':<36}{'lag [deg]':>10}{'/ oracle':>10}{'width [Hz]':>12}")
-        for name, lag, ratio, bw in budget(s, args.age):
+        for name, lag, ratio, bw in budget(s, args.age) + chance_rows(s, args.age, args.chance,
+                                                                      args.every):
             print(f"  {name:<36}{lag:>10.2f}{ratio:>10.2f}{bw:>12.3f}")
     return 0
 
