@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -38,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from sysid_node.process_group import stop_group
 
 REPO = Path(__file__).resolve().parents[1]
 RUN = REPO / "ros2_ws" / "run"
@@ -80,18 +80,6 @@ def _group_cpu_s(pgid: int) -> float:
         if int(fields[2]) == pgid:  # fields after ')' start at state (3rd field of stat)
             total += int(fields[11]) + int(fields[12])
     return total / CLK_TCK
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
-        except ProcessLookupError:
-            pass
 
 
 class DdsClient:
@@ -277,7 +265,7 @@ def run_one(sc: Scenario, seconds: float, warmup: float, extra: list[str],
         }
     finally:
         client.close()
-        _stop(node)
+        stop_group(node)
 
 
 def main() -> int:

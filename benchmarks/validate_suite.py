@@ -5,9 +5,12 @@ validation error per effect, the clean cases' additions, every gate's false-alar
 clean cases and the time per case.
 
     ros2_ws/env python benchmarks/validate_suite.py [--per-effect 15] [--clean 40] [--workers 2]
+        [--failures]
 
-The same cases as ``src/sysid_node/test/test_validation_suite.py`` (seeded draws of
-``sysid_node.scenarios.draw_effects``; see ``sysid_node.validation.suite``).
+The issue's suite (15 cases per effect, 40 clean); ``src/sysid_node/test/test_validation_suite.py``
+runs its first 6 cases per effect and all 40 clean ones (seeded draws of
+``sysid_node.scenarios.draw_effects``; see ``sysid_node.validation.suite``). ``--failures``
+prints the per-case breakdown of the effect cases not ranked right.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ def main() -> None:
     ap.add_argument("--per-effect", type=int, default=S.CASES_PER_EFFECT)
     ap.add_argument("--clean", type=int, default=S.CLEAN_CASES)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--failures", action="store_true",
+                    help="one line per effect case not ranked right (gate, trial drop, note)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers)
@@ -45,6 +50,8 @@ def main() -> None:
           f"({sm['seconds_per_case']:.2f} s of validate per case, draws excluded)")
     for err in sm["errors"]:
         print("error:", err)
+    if args.failures:
+        print("\neffect cases not ranked right:\n" + S.failures(results))
 
 
 if __name__ == "__main__":

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sysid_node.process_group import stop_group
 from sysid_node.tools import offline
 
 from sysid_node import bag_io
@@ -35,19 +35,6 @@ def _env() -> dict[str, str]:
 def _start(args: list[str], log: Path) -> subprocess.Popen:
     return subprocess.Popen([str(RUN), "sysid_node", *args], stdout=log.open("w"),
                             stderr=subprocess.STDOUT, env=_env(), start_new_session=True)
-
-
-def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> int:
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
-        except ProcessLookupError:
-            pass
-    return proc.returncode
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +150,8 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
         _wait_for_estimate(_end_time(paper_bag) - 200_000_000, timeout=60.0)
         time.sleep(1.0)
     finally:
-        _stop(record)
-        code = _stop(node)
+        stop_group(record)
+        code = stop_group(node)
     node_log = (tmp_path / "node.log").read_text()
     assert code == 0 and "Traceback" not in node_log, node_log[-2000:]
     live = _read_estimates(rec_bag)

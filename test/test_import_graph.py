@@ -1,4 +1,5 @@
-"""No import cycle inside the sysid_node and notch_filter_node packages (static, via ast).
+"""No import cycle inside the sysid_node and notch_filter_node packages (static, via ast), and
+no ROS import when a pure module is imported (pure core, thin nodes).
 
 Every import counts, also the ones inside functions (a lazy import hides a cycle, it does not
 remove it). ``from pkg import name`` is an edge to ``pkg.name`` when that is a module, else to
@@ -8,11 +9,19 @@ remove it). ``from pkg import name`` is an edge to ``pkg.name`` when that is a m
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = [REPO / "src" / "sysid_node" / "sysid_node",
             REPO / "src" / "notch_filter_node" / "notch_filter_node"]
+#: The modules that adapt the core to ROS (nodes, message conversion, the executables' entry);
+#: every other module of the two packages is pure. ``tools`` (CLIs) may use either.
+ROS_ADAPTERS = {"sysid_node.node", "sysid_node.entry", "sysid_node.msg_convert",
+                "notch_filter_node.node"}
+ROS_PACKAGES = ("rclpy", "rosidl_runtime_py", "sysid_msgs", "diagnostic_msgs", "sensor_msgs",
+                "std_msgs", "rcl_interfaces", "builtin_interfaces")
 
 
 def _modules(roots: list[Path]) -> dict[str, Path]:
@@ -104,3 +113,25 @@ def test_the_checker_finds_a_lazy_cycle(tmp_path):
     (pkg / "sub" / "b.py").write_text("def f():\n    from ..a import x\n")
     (pkg / "c.py").write_text("from . import a\n")
     assert cycles(import_graph([pkg])) == [["pkg.a", "pkg.sub.b"]]
+
+
+def test_pure_modules_import_no_ros():
+    """Importing every module but the ROS adapters (and the CLIs) loads no ROS package: the
+    numerics, ingest, pipeline, validation and notch design run without rclpy. Lazy imports
+    inside functions that only the nodes call are allowed (node_params' ROS side)."""
+    pure = sorted(m for m in _modules(PACKAGES)
+                  if m not in ROS_ADAPTERS and not m.startswith("sysid_node.tools"))
+    assert "sysid_node.core.recursive" in pure and "notch_filter_node.sections" in pure
+    code = (
+        "import importlib, sys\n"
+        f"ROS = {ROS_PACKAGES!r}\n"
+        f"for m in {pure!r}:\n"
+        "    before = set(sys.modules)\n"
+        "    importlib.import_module(m)\n"
+        "    ros = sorted(k for k in set(sys.modules) - before if k.split('.')[0] in ROS)\n"
+        "    if ros:\n"
+        "        print(m, 'imports', ', '.join(ros[:3]))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert not res.stdout.strip(), res.stdout

@@ -9,13 +9,13 @@ start-up lines name the resolved topics and the diagnostics carry each node's fu
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from sysid_node.process_group import stop_group
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "paper_example"
@@ -31,18 +31,6 @@ def _executable(pkg: str, exe: str) -> str:
     finally:
         sys.path.pop(0)
     return str(find(pkg, exe))
-
-
-def _stop(proc: subprocess.Popen) -> int | None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
-            return None
-    return proc.returncode
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +93,7 @@ def two_wings(tmp_path_factory):
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.1)
     finally:
-        codes = {k: _stop(p) for k, p in procs.items()}
+        codes = {k: stop_group(p, timeout=20) for k, p in procs.items()}
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)

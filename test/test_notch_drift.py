@@ -14,9 +14,13 @@ one; quiet, the phase lag at the crossover within 1.5 x the oracle notch's.
 Under the hogs a late estimate holds the notches and widens them; sysid_node's bounded latency
 under contention (#12 item 1) keeps the estimate age well under fallback_timeout. The quiet lag
 target is ``xfail(strict=False)`` (it runs and reports): the widths follow the identification's
-uncertainty, and on this scenario its damping std is of the order of the damping itself (the
-figures say how far from the oracle; on bags/wing_bending_drift the beam notch is within 1.2 x,
-benchmarks/wing_notch_figures.py).
+uncertainty. benchmarks/notch_width_budget.py splits the width on this scenario (2.1-2.6 Hz,
+2.2 %; offline sysid estimates): point estimate 1.1 x the oracle's lag, + damping (2 stds, the
+notch model's damping std ~ 22 % of the damping, calibrated: (estimate - truth)/std has a
+standard deviation of 0.7-1.0 on six draws) 1.7 x, + frequency (3 stds, ~ 1 % of the frequency,
+as large as half the mode's half-power band; not too large: during a drift the frequency lags,
+(estimate - truth)/std 1.2-7 on five of six draws) 2.1-2.4 x, + age/drift 2.5-2.9 x. Seed 2
+(3.6-4.4 Hz, 1.2 %) 1.9 x; seeds 1, 4, 5, 6 (9-40 Hz, frequency std 0.05-0.23 % of it) 1.1-1.3 x.
 """
 
 from __future__ import annotations
@@ -70,8 +74,8 @@ def test_quiet_keeps_the_peak_15_db_down_in_99_percent(quiet):
     _common(quiet, 0.99)
 
 
-@pytest.mark.xfail(strict=False, reason="widths follow sysid's frequency/damping stds; "
-                   "measured lag / oracle is printed")
+@pytest.mark.xfail(strict=False, reason="widths follow sysid's frequency/damping stds (calibrated "
+                   "or too small here, benchmarks/notch_width_budget.py); lag / oracle printed")
 def test_quiet_phase_lag_within_1_5_x_the_oracle(quiet):
     assert quiet["lag_ratio_median"] <= 1.5, quiet
 

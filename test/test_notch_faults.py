@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import os
 import random
-import signal
 import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sysid_node.process_group import stop_group
 
 pytestmark = [pytest.mark.dds, pytest.mark.slow]
 
@@ -55,13 +55,7 @@ def _start(name: str, kind: str, topic: str) -> subprocess.Popen:
 
 
 def _stop(proc: subprocess.Popen) -> str:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
+    stop_group(proc)
     return proc.stdout.read() if proc.stdout else ""
 
 

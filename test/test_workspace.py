@@ -7,6 +7,8 @@ import subprocess
 import time
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 WS = REPO / "ros2_ws"
 
@@ -16,6 +18,10 @@ def _run(
 ) -> subprocess.CompletedProcess:
     full_env = {**os.environ, **(env or {})}
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=full_env)
+
+
+#: runs ros2_ws/setup in this checkout: never beside other tests that use the workspace
+pytestmark = pytest.mark.serial
 
 
 def test_second_setup_is_fast_and_changes_nothing():

@@ -11,13 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from find_executable import find
+from sysid_node.process_group import stop_group
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_BAG = REPO / "bags" / "paper_example"
@@ -32,19 +32,6 @@ class DemoError(RuntimeError):
 def _start(argv: list[str], log: Path) -> subprocess.Popen:
     fh = log.open("w")
     return subprocess.Popen(argv, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> None:
-    if proc.poll() is not None:
-        return
-    try:
-        os.killpg(proc.pid, signal.SIGINT)
-        proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=5)
-    except ProcessLookupError:
-        pass
 
 
 def run_pipeline(bag: Path, out: Path, params: Path, rate: float) -> Path:
@@ -104,7 +91,7 @@ def run_pipeline(bag: Path, out: Path, params: Path, rate: float) -> Path:
         time.sleep(1.5)  # let the last estimate and filtered samples arrive
     finally:
         for p in reversed(procs):
-            _stop(p)
+            stop_group(p)
     if not recorded.exists():
         raise DemoError(f"nothing was recorded (see {logs / 'record.log'})")
     return recorded

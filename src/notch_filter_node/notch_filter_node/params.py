@@ -80,9 +80,13 @@ PARAMS: tuple[ParamSpec, ...] = (
        "uncertainty (gain stabilization); sets each notch's width (must be below depth) [dB]",
        lo=0.5, hi=79.0, unit="dB"),
     _p("sigma_k", float, _D.sigma_k,
-       "Half-width of the mode's frequency interval in frequency stds [-]", lo=0.0, hi=10.0),
+       "Half-width of the mode's frequency interval in frequency stds; with damping_sigma_k "
+       "it sets the confidence of the peak_reduction guarantee: the region covers the true "
+       "mode with probability 96.5 % for 3 and 2 (Gaussian, calibrated stds; "
+       "resonance.region_confidence) [-]", lo=0.0, hi=10.0),
     _p("damping_sigma_k", float, _D.damping_sigma_k,
-       "The width is designed for a damping up to zeta + damping_sigma_k * zeta_std [-]",
+       "The width is designed for a damping up to zeta + damping_sigma_k * zeta_std (an "
+       "ellipse with the frequency interval; confidence: see sigma_k) [-]",
        lo=0.0, hi=10.0),
     _p("drift_window", float, _D.drift_window,
        "Span of recent estimates the drift rate of a mode is fitted over [s]", lo=0.1,

@@ -143,3 +143,16 @@ def test_closed_form_phase_lag_equals_freqz():
     got = S.damping_lag_deg(0.7, centre, zp, zz, fs)
     want = S.section_phase_lags_deg(S.notch_sos(centre, bw, depth, fs), 0.7, fs)
     np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+@pytest.mark.parametrize("kf,kz", [(3.0, 2.0), (2.0, 3.0), (1.0, 0.0), (2.5, 2.5)])
+def test_region_confidence_is_the_gaussian_mass_it_covers(kf, kz):
+    """Monte Carlo: standardized errors inside the designed region or below it in damping."""
+    rng = np.random.default_rng(7)
+    u, v = rng.standard_normal((2, 400_000))
+    inside = np.abs(u) <= kf
+    if kz > 0:
+        inside &= (v <= 0) | ((u / kf) ** 2 + (v / kz) ** 2 <= 1.0)
+    else:
+        inside &= v <= 0
+    assert R.region_confidence(kf, kz) == pytest.approx(inside.mean(), abs=2e-3)

@@ -113,7 +113,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     # -- mode tracking gates (live) --
     _p("tracking_frequency_tolerance", float, 0.05,
        "Relative frequency gate for matching a mode to a tracked one [-]", lo=0.001, hi=0.5),
-    _p("tracking_confirm_count", int, 2,
+    _p("tracking_confirm_count", int, 3,
        "Successive matches before a tentative mode becomes tracked [-]", lo=1, hi=100),
     _p("tracking_lost_timeout", float, 2.0,
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,

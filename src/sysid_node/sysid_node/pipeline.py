@@ -161,6 +161,7 @@ class Pipeline:
             "lost_timeout_s": v["tracking_lost_timeout"],
             "drop_timeout_s": v["tracking_drop_timeout"],
             "max_tracked": v["max_modes"],
+            "consecutive": True,  # tracking_confirm_count: successive matches
         }
 
     def _realization_interval(self) -> int:

@@ -4,7 +4,7 @@ the naive direct DSRA on the same data for contrast), exactness without noise, b
 
 import numpy as np
 import pytest
-from sysid_node.core.closed_loop import identify_closed_loop
+from sysid_node.core.closed_loop import _predictor_start, identify_closed_loop
 from sysid_node.core.controller import DiscreteController, design_lqg, plant_ss
 from sysid_node.core.inputs import InputError
 from sysid_node.core.lpv import match_modes
@@ -93,6 +93,21 @@ def test_exact_without_noise():
     assert ef < 1e-6 and ez < 1e-6
     # the reference reconstructed from the known controller is the one applied
     np.testing.assert_allclose(k.reference(rec.u, rec.y), rec.r, atol=1e-8)
+
+
+def test_defective_predictor_start_falls_back_to_output_error():
+    """A - K C a Jordan block (the deadbeat predictor of noise-free data): its eigenvectors
+    are parallel, so the modal start uses K = 0 (A's own modes) instead of inverting a singular
+    basis (this made test_exact_without_noise fail on some runs)."""
+    a = np.array([[0.9, 1.0], [-0.5, 0.0]])
+    c = np.array([[1.0, 0.0]])
+    k = a[:, :1].copy()  # A - K C = [[0, 1], [0, 0]]
+    b, d = np.array([[1.0], [0.5]]), np.zeros((1, 1))
+    blocks, bk, c_t, d_t = _predictor_start(a, b, c, d, k)
+    assert np.all(np.isfinite(bk)) and np.all(np.isfinite(c_t))
+    np.testing.assert_allclose(np.sort_complex(np.linalg.eigvals(blocks.matrix())),
+                               np.sort_complex(np.linalg.eigvals(a)), atol=1e-12)
+    np.testing.assert_allclose(bk[:, 1:], 0.0, atol=1e-12)  # K = 0
 
 
 def test_bad_input_is_refused():

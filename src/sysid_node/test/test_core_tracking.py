@@ -85,3 +85,16 @@ def test_empirical_uncertainty_reported():
 def test_bad_configuration_raises():
     with pytest.raises(ValueError):
         ModeTracker(smoothing=0.0)
+
+
+@pytest.mark.parametrize("consecutive", [True, False])
+def test_sporadic_mode_confirmed_only_when_hits_need_not_be_successive(consecutive):
+    """A noise pole that passes every other realization (as spurious poles do, now and then)
+    is never confirmed when the hits must be successive; counting hits confirms it."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0, consecutive=consecutive)
+    for k in range(12):
+        modes = [_m(2.0)] + ([_m(7.3)] if k % 2 else [])
+        out = tr.update(modes, 0.05 * k)
+    status = {round(t.frequency_hz, 1): t.status for t in out}
+    assert status[2.0] == "tracked"
+    assert status[7.3] == ("tentative" if consecutive else "tracked")

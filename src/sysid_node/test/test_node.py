@@ -9,7 +9,6 @@ sent as ``SignalBlock`` messages faster than real time (the node works in data t
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import threading
 import time
@@ -23,6 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters  # noqa: E402
+from sysid_node.process_group import stop_group  # noqa: E402
 from sysid_node.scenarios.paper import paper_example_data  # noqa: E402
 
 from sysid_node import msg_convert as mc  # noqa: E402
@@ -50,19 +50,6 @@ def start_node(*ros_args: str, log: Path) -> subprocess.Popen:
         [str(RUN), "sysid_node", "sysid_node", "--ros-args", *ros_args],
         stdout=fh, stderr=subprocess.STDOUT, env=_env(), start_new_session=True,
     )
-
-
-def stop_node(proc: subprocess.Popen, timeout: float = 10.0) -> int:
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
-        except ProcessLookupError:
-            pass
-    return proc.returncode
 
 
 class Harness:
@@ -240,7 +227,7 @@ def test_parameters_command_line_file_and_services(data, harness, tmp_path):
         reset = harness.wait_estimate(stamps[n2 + 280])
         assert reset.block_rows == 12 and reset.samples_used < 300
     finally:
-        code = stop_node(proc)
+        code = stop_group(proc)
     text = (tmp_path / "node.log").read_text()
     assert code == 0 and "Traceback" not in text, text[-2000:]
     assert "rejected" in text and "structural parameter(s) changed (block_rows)" in text
@@ -304,7 +291,7 @@ def test_bad_input_counted_node_keeps_running_and_recovers(data, harness, tmp_pa
             time.sleep(0.05)
         assert late and mc.stamp_ns(late[0].header) == mc.stamp_ns(harness.estimates[-1].header)
     finally:
-        code = stop_node(proc)
+        code = stop_group(proc)
     text = (tmp_path / "node.log").read_text()
     assert code == 0 and "Traceback" not in text, text[-2000:]
     assert "gap of 2.000 s" in text and "NaN/Inf" in text

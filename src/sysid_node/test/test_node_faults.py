@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sysid_node.process_group import stop_group
 from sysid_node.scenarios.paper import paper_example_data
 
 pytest.importorskip("rclpy")
@@ -20,7 +21,7 @@ _spec = importlib.util.spec_from_file_location("sysid_test_node",
 _tn = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_tn)  # the DDS harness of test_node.py (not its tests)
 FS, RUN, T0, Harness, _env = _tn.FS, _tn.RUN, _tn.T0, _tn.Harness, _tn._env
-start_node, stop_node = _tn.start_node, _tn.stop_node
+start_node = _tn.start_node
 
 pytestmark = [pytest.mark.dds, pytest.mark.slow]
 
@@ -81,7 +82,7 @@ def test_stuck_sensor_and_dead_worker_visible(harness, tmp_path):
         after = harness.wait_estimate(stamps[1500], timeout=90)
         assert after.samples_used > 0
     finally:
-        code = stop_node(proc)
+        code = stop_group(proc)
     text = (tmp_path / "node.log").read_text()
     assert code == 0 and "Traceback" not in text, text[-2000:]
     assert "restarting it" in text

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import subprocess
 import threading
 import time
@@ -19,6 +18,7 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from sysid_node.core.lpv import LpvModel  # noqa: E402
+from sysid_node.process_group import stop_group  # noqa: E402
 from sysid_node.scenarios.csm_rotor import csm_at  # noqa: E402
 from sysid_node.scenarios.paper import paper_example_data  # noqa: E402
 from sysid_node.scheduling import SchedulePredictor  # noqa: E402
@@ -120,13 +120,7 @@ def test_estimates_carry_scheduling_value_and_predicted_modes(tmp_path):
         assert 33.0 <= float(kv["scheduling_value"]) <= 35.0
         assert 0.0 <= float(kv["scheduling_age_s"]) <= 0.1 + 1e-6
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(timeout=5)
+        stop_group(proc, timeout=15)
         ex.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)

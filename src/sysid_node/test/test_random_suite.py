@@ -6,7 +6,8 @@ Asserted here on every estimate of the subset: the ``max_modes`` contract (never
 ``tracked`` modes than ``max_modes``) and the searched band reported. On the easy draws
 (input-output, at most two modes) every true mode is tracked within 2 % by 3 s of data and the
 estimates stay right. Issue #10's aggregate targets (>= 90 % found, <= 0.5 false per
-estimate) are NOT met by the defaults yet; the benchmark measures them."""
+estimate, never more than 2, >= 95 % right after a change) are asserted on the benchmark's
+first draws, a strict xfail while the defaults miss them (the benchmark measures all 52)."""
 
 from __future__ import annotations
 
@@ -54,3 +55,22 @@ def test_easy_draws_found_by_3_s_and_kept(runs):
         assert res.found_by_3s and res.settled_share >= 0.9, res
         if res.change != "none":
             assert res.pickup_s <= 3.0 and res.after_share >= 0.9, res
+
+
+#: The first draws of the benchmark's table (all kinds: output-only, up to 8 modes, changes).
+TARGET_SEEDS = range(8)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "issue #10 targets not met by the defaults: benchmarks/random_suite.py (52 draws) gives "
+    "every mode within 2 % by 3 s in 26.9 % of draws (target 90 %), false tracked per estimate "
+    "mean 0.08 / max 4 (target 0.5 / 2), after a change 21 % (target 95 %); of the 38 misses "
+    "23 draws have more modes (6-8) than max_modes (5), 10 a lowest mode below 0.02 fs"))
+def test_issue_10_targets_on_the_first_draws():
+    from sysid_node.suite import run_draw, summary
+
+    s = summary([run_draw(seed, duration_s=DURATION_S) for seed in TARGET_SEEDS])
+    assert s["found_2pct_by_3s"] >= 0.9, s
+    assert s["false_per_estimate_mean"] <= 0.5 and s["false_per_estimate_max"] <= 2, s
+    assert not s["changes"] or s["after_change_share"] >= 0.95, s

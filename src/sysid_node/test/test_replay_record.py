@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -11,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sysid_node.process_group import stop_group
 
 from sysid_node import bag_io
 
@@ -33,17 +33,6 @@ def _start(args: list[str], log: Path) -> subprocess.Popen:
         env=_env(),
         start_new_session=True,
     )
-
-
-def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> int:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=5)
-    return proc.returncode
 
 
 def _run(args: list[str], timeout: float = 60.0) -> subprocess.CompletedProcess:
@@ -129,6 +118,7 @@ def _raw(bag: Path, topic: str) -> list[bytes]:
     return [raw + b"\0" * (-len(raw) % 4) for _, _, raw in bag_io.iter_messages(bag, [topic])]
 
 
+@pytest.mark.dds
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_replay_into_record_is_byte_exact(tmp_path: Path, storage: str) -> None:
     src = _source_bag(tmp_path / "src")
@@ -156,7 +146,7 @@ def test_replay_into_record_is_byte_exact(tmp_path: Path, storage: str) -> None:
         assert "published 421 messages" in rep.stdout
         time.sleep(0.5)
     finally:
-        assert _stop(rec) == 0, (tmp_path / "record.log").read_text()
+        assert stop_group(rec) == 0, (tmp_path / "record.log").read_text()
     log = (tmp_path / "record.log").read_text()
     assert "/vibration 200" in log and "/modal_estimate 1" in log
     assert took > 0.9  # 2 s of data at 2x, paced, not dumped
@@ -179,6 +169,7 @@ def test_replay_into_record_is_byte_exact(tmp_path: Path, storage: str) -> None:
     assert "transient_local" in meta or "durability: 1" in meta
 
 
+@pytest.mark.dds
 def test_topic_selection_and_record_duration(tmp_path: Path) -> None:
     src = _source_bag(tmp_path / "src")
     out = tmp_path / "rec"
@@ -205,12 +196,13 @@ def test_topic_selection_and_record_duration(tmp_path: Path) -> None:
         assert rep.returncode == 0, rep.stderr
         rec.wait(timeout=20)  # ends by itself after --duration
     finally:
-        _stop(rec)
+        stop_group(rec)
     assert rec.returncode == 0
     assert _raw(out, "/excitation") == _raw(src, "/excitation")
     assert bag_io.list_topics(out)["/vibration"][1] == 0
 
 
+@pytest.mark.dds
 def test_namespaced_record_and_remapped_replay(tmp_path: Path) -> None:
     """record resolves relative names in its namespace (--ros-args -r __ns:=/left_wing) and
     stores the full names; replay --remap publishes a bag topic under another name."""
@@ -228,7 +220,7 @@ def test_namespaced_record_and_remapped_replay(tmp_path: Path) -> None:
         assert "/left_wing/vibration 200" in rep.stdout
         rec.wait(timeout=20)
     finally:
-        _stop(rec)
+        stop_group(rec)
     assert rec.returncode == 0, (tmp_path / "record.log").read_text()
     assert list(bag_io.list_topics(out)) == ["/left_wing/vibration"]
     assert _raw(out, "/left_wing/vibration") == _raw(src, "/vibration")
@@ -272,6 +264,7 @@ def test_truncated_bag_one_line(tmp_path: Path) -> None:
     assert len(res.stderr.strip().splitlines()) == 1, res.stderr
 
 
+@pytest.mark.dds
 def test_loop_with_sensor_qos_until_sigint(tmp_path: Path) -> None:
     src = _source_bag(tmp_path / "src")
     out = tmp_path / "rec"
@@ -298,8 +291,8 @@ def test_loop_with_sensor_qos_until_sigint(tmp_path: Path) -> None:
         time.sleep(3.0)  # 0.5 s per pass
         assert rep.poll() is None, (tmp_path / "replay.log").read_text()
     finally:
-        assert _stop(rep) == 0
-        assert _stop(rec) == 0
+        assert stop_group(rep) == 0
+        assert stop_group(rec) == 0
     line = (tmp_path / "replay.log").read_text().strip().splitlines()[-1]
     assert int(line.split("published ")[1].split()[0]) > 400  # more than two passes
     assert "best effort" in (tmp_path / "rec.log").read_text()

@@ -1,7 +1,9 @@
-"""The randomized, seeded hidden-effect suite of validate (issue #11; sysid_node.validation.suite):
-15 draws per effect and 40 clean ones (1-3 modes, 100-1000 Hz, white / coloured / multisine /
-sweep input, effect size 2-20 x the output noise), each validated with the nominal order and
---auto on two worker processes. ``benchmarks/validate_suite.py`` prints the same figures.
+"""The randomized, seeded hidden-effect suite of validate (issue #11; sysid_node.validation.suite),
+as a test: the first 6 draws of every effect (all four input kinds) and all 40 clean ones
+(1-3 modes, 100-1000 Hz, white / coloured / multisine / sweep input, effect size 2-20 x the
+output noise), each validated with the nominal order and --auto on two worker processes.
+``benchmarks/validate_suite.py`` runs the issue's 15 draws per effect and prints the figures
+(confusion matrix, drops, clean false alarms, time per case, ``--failures`` per case).
 
 Asserted: clean records get nothing added (>= 95 %), every gate's false-alarm rate on them,
 and the per-effect levels reached so far. The issue's target (the right effect first in >= 90 %
@@ -14,28 +16,30 @@ from __future__ import annotations
 import pytest
 from sysid_node.validation import suite as S
 
-#: Levels reached when this suite was written, one case (1/15) below the measured share so
-#: that another CPU's rounding may move one case (a regression beyond that fails). Measured
-#: (benchmarks/validate_suite.py): missing_mode 7/15, periodic_disturbance 14/15,
-#: parameter_varying 1/15, input_delay 6/15, nonlinear_stiffness 1/15, sensor_bias 14/15,
-#: feedback 1/15.
-RIGHT_FIRST_FLOOR = {
-    "missing_mode": 0.4,
-    "periodic_disturbance": 0.85,
-    "parameter_varying": 0.0,
-    "input_delay": 0.33,
-    "nonlinear_stiffness": 0.0,
-    "sensor_bias": 0.85,
-    "feedback": 0.0,
+#: Cases ranked right in the test's subset when it was measured (main 2f40cb0, 6 per effect),
+#: as a count; the floor is one case below (another CPU's rounding may move one case, a
+#: regression beyond that fails). The benchmark's 15 per effect (same seeds first) gave
+#: missing_mode 7, periodic_disturbance 14, parameter_varying 1, input_delay 6,
+#: nonlinear_stiffness 1, sensor_bias 14, feedback 1.
+RIGHT_FIRST_MEASURED = {
+    "missing_mode": 4,
+    "periodic_disturbance": 6,
+    "parameter_varying": 1,
+    "input_delay": 3,
+    "nonlinear_stiffness": 0,
+    "sensor_bias": 6,
+    "feedback": 0,
 }
-#: Median drop of the validation error reached (measured 70 % and 40 %), with room.
-MEDIAN_DROP_FLOOR = {"periodic_disturbance": 0.5, "sensor_bias": 0.25, "input_delay": 0.2}
+#: Median drop of the validation error reached in the subset (measured 61 % and 50 %), with
+#: room for one case falling to no drop. (input_delay's median, 23 %, sits between a right
+#: and an unexplained case: one case moves it to 0, so it is guarded by its count above.)
+MEDIAN_DROP_FLOOR = {"periodic_disturbance": 0.3, "sensor_bias": 0.2}
 GATE_FALSE_ALARM_MAX = 0.2  # before the trial; the trial's held-out test keeps additions out
 
 
 @pytest.fixture(scope="session")
 def suite_results():
-    return S.run_suite(S.cases(), workers=2)
+    return S.run_suite(S.cases(S.TEST_CASES_PER_EFFECT, S.TEST_CLEAN_CASES), workers=2)
 
 
 @pytest.fixture(scope="session")
@@ -52,7 +56,7 @@ def suite_summary(suite_results):
 
 @pytest.mark.slow
 def test_suite_runs_every_case(suite_results, suite_summary):
-    assert len(suite_results) == 7 * S.CASES_PER_EFFECT + S.CLEAN_CASES
+    assert len(suite_results) == 7 * S.TEST_CASES_PER_EFFECT + S.TEST_CLEAN_CASES
     assert not suite_summary["errors"]
     kinds = {r.kind for r in suite_results}
     assert kinds == set(S.KINDS)
@@ -71,9 +75,10 @@ def test_gate_false_alarm_rates_on_clean_records(suite_summary):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", [e for e, v in RIGHT_FIRST_FLOOR.items() if v > 0])
+@pytest.mark.parametrize("effect", [e for e, v in RIGHT_FIRST_MEASURED.items() if v > 1])
 def test_effect_ranked_first_at_least_as_often_as_before(suite_summary, effect):
-    assert suite_summary["effects"][effect]["right_first"] >= RIGHT_FIRST_FLOOR[effect]
+    row = suite_summary["effects"][effect]
+    assert round(row["right_first"] * row["cases"]) >= RIGHT_FIRST_MEASURED[effect] - 1
 
 
 @pytest.mark.slow

@@ -255,11 +255,27 @@ class _Predictor:
         return -np.einsum("ij,kjp->kip", self.w, jac).reshape(nk * l, -1)
 
 
+#: Largest condition number of the modal basis T of a predictor's A - K C used as a start:
+#: beyond it A - K C is (nearly) defective, e.g. the deadbeat predictor that noise-free data
+#: give (repeated eigenvalues at 0), and T^-1 amplifies rounding into garbage or fails.
+MODAL_COND_MAX = 1e8
+
+
+def _modal_predictor(a: np.ndarray, k: np.ndarray, c: np.ndarray
+                     ) -> tuple[_Blocks, np.ndarray, np.ndarray, np.ndarray]:
+    """(blocks, T, T^-1, K) of the predictor A - K C in modal form; when A - K C is (nearly)
+    defective, of the output-error predictor K = 0 instead (A's modes; PEM re-estimates K)."""
+    for gain in (k, np.zeros_like(k)):
+        blocks, t = _to_blocks(a - gain @ c)
+        if t.shape == a.shape and np.linalg.cond(t) < MODAL_COND_MAX:
+            return blocks, t, np.linalg.inv(t), gain
+    raise np.linalg.LinAlgError("the model's A has no well-conditioned modal form")
+
+
 def _predictor_start(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
                      k: np.ndarray) -> tuple[_Blocks, np.ndarray, np.ndarray, np.ndarray]:
-    """Predictor (A - K C, [B - K D, K], C, D) in modal blocks."""
-    blocks, t = _to_blocks(a - k @ c)
-    ti = np.linalg.inv(t)
+    """Predictor (A - K C, [B - K D, K], C, D) in modal blocks (K = 0 if A - K C is defective)."""
+    blocks, t, ti, k = _modal_predictor(a, k, c)
     bk = ti @ np.hstack([b - k @ d, k])
     return blocks, bk, c @ t, d
 
@@ -543,8 +559,10 @@ def _subspace_start(a: np.ndarray, c: np.ndarray, y: np.ndarray, u: np.ndarray, 
         return None
     if not np.max(np.abs(np.linalg.eigvals(a - k @ c))) < 1.0:
         return None
-    blocks, t = _to_blocks(a - k @ c)
-    ti = np.linalg.inv(t)
+    try:
+        blocks, t, ti, k = _modal_predictor(a, k, c)
+    except np.linalg.LinAlgError:
+        return None
     k_t, c_t = ti @ k, c @ t
     bp, d = _fit_linear(blocks, k_t, c_t, y, u, skip)
     return blocks, np.hstack([bp, k_t]), c_t, d

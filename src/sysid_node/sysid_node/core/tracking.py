@@ -5,12 +5,14 @@ and mode shape (MAC), solved as an assignment problem (``scipy.optimize.linear_s
 Unmatched modes open tentative tracks, unless they fall inside the gate of a track that took
 another mode (a split of one physical mode). Two live tracks that come within the frequency and
 MAC gates and twice the damping gate of each other are merged into the one with more hits.
-Tentative tracks are confirmed after ``confirm_hits`` hits (consistency across updates rejects
-one-off spurious modes); a track not seen for ``lost_timeout_s`` is lost (and
-may be re-acquired with the same id), and dropped after ``drop_timeout_s``. Tentative tracks
-that miss for ``lost_timeout_s`` are discarded. Reported values are exponentially smoothed over
-the hits; the standard deviations combine the delta-method value of the latest realization
-with the empirical spread of the recent raw estimates.
+Tentative tracks are confirmed after ``confirm_hits`` hits, in successive updates when
+``consecutive`` (consistency across updates rejects spurious modes: a noise pole passes the
+tests of a realization now and then, a physical one in a row); a track not seen for
+``lost_timeout_s`` is lost (and may be re-acquired with the same id), and dropped after
+``drop_timeout_s``. Tentative tracks that miss for ``lost_timeout_s`` are discarded. Reported
+values are exponentially smoothed over the hits; the standard deviations combine the
+delta-method value of the latest realization with the empirical spread of the recent raw
+estimates.
 
 Only modes that passed the spurious-mode tests of their realization
 (``ModalParameters.stable``, ``spurious.py``; True when none were run) are matched: the others
@@ -51,6 +53,8 @@ class TrackedMode:
     ranks: deque = field(default_factory=lambda: deque(maxlen=5), repr=False)
     #: hits reached ``confirm_hits`` (the status may still be tentative: ranked out)
     confirmed: bool = False
+    #: hits in successive updates (reset by an update that does not match the track)
+    streak: int = 0
 
     @property
     def rank(self) -> float:
@@ -73,7 +77,8 @@ class ModeTracker:
     difference and ``mac_gate`` minimum MAC (used when shapes have more than one component)
     bound a match, measured from the median of the last ``reference_hits`` raw estimates of the
     track; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing);
-    ``max_tracked`` (None = no limit) bounds the number of ``tracked`` modes.
+    ``max_tracked`` (None = no limit) bounds the number of ``tracked`` modes; ``consecutive``
+    counts only hits in successive updates towards ``confirm_hits`` (a miss restarts the count).
     """
 
     def __init__(
@@ -88,6 +93,7 @@ class ModeTracker:
         history: int = 20,
         reference_hits: int = 5,
         max_tracked: int | None = None,
+        consecutive: bool = False,
     ) -> None:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
@@ -103,6 +109,7 @@ class ModeTracker:
         self.history = history
         self.reference_hits = max(int(reference_hits), 1)
         self.max_tracked = max_tracked
+        self.consecutive = bool(consecutive)
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
 
@@ -149,6 +156,9 @@ class ModeTracker:
                 self._next_id += 1
                 self._hit(tr, md, t, first=True)
                 self.tracks.append(tr)
+        for tr in self.tracks:
+            if tr.last_seen != t:
+                tr.streak = 0  # missed in this update
         self._merge_duplicates()
         keep = []
         for tr in self.tracks:
@@ -212,6 +222,7 @@ class ModeTracker:
             float(np.median([h[1] for h in recent])),
         )
         tr.hits += 1
+        tr.streak += 1
         tr.last_seen = t
         tr.ranks.append(md.rank_key)
         a = 1.0 if first else self.smoothing
@@ -229,6 +240,7 @@ class ModeTracker:
             frequency_std_hz=f_std,
             damping_std=z_std,
         )
-        if tr.hits >= self.confirm_hits or tr.status == "lost":
+        hits = tr.streak if self.consecutive else tr.hits
+        if hits >= self.confirm_hits or tr.status == "lost":
             tr.confirmed = True
         tr.status = "tracked" if tr.confirmed else "tentative"
