@@ -7,8 +7,9 @@ the estimator (the caller logs a line), ``read_only`` ones can only be set at st
 checks such as ``freq_min < freq_max``); both return a reason string, empty when valid.
 
 Defaults serve a sensor nobody has configured for: the sample rate is measured from the stamps
-(``sample_rate: 0``), the band spans up to ``0.4 fs`` (``freq_max: 0``), and memory may be given as
-a time constant in seconds that is independent of the sample rate (``memory_time_constant``).
+(``sample_rate: 0``), the band is found from the data (``freq_max: 0``, ``core/band.py``), and
+memory may be given as a time constant in seconds that is independent of the sample rate
+(``memory_time_constant``).
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("decimation", int, 0,
        "Identify at sample_rate / decimation after an anti-alias low-pass (inputs and outputs "
        "alike); 0 = auto: the largest factor keeping the identification rate >= 10 x freq_max "
-       "(1 when freq_max is 0); 1 = off", "structural", lo=0, hi=100),
+       "(with freq_max 0: x the automatic band's edge); 1 = off", "structural", lo=0, hi=100),
     # -- estimator (structural) --
     _p("block_rows", int, 0,
        "Hankel block rows i of the recursive DSRA (A1) [-]; 0 = auto: about "
@@ -78,8 +79,13 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("freq_min", float, 0.0, "Lower edge of the frequency band of reported modes [Hz]",
        lo=0.0, hi=50000.0, unit="Hz"),
     _p("freq_max", float, 0.0,
-       f"Upper edge of the band [Hz]; 0 = {NYQUIST_SAFE_FRACTION:g} x sample rate",
-       lo=0.0, hi=50000.0, unit="Hz"),
+       "Upper edge of the band [Hz]; 0 = automatic: after the first 4 s of data (0.4 x "
+       "sample rate until then) the band reaches half an octave above the highest peak where "
+       "the Welch spectrum of an output (or input) stands above its noise floor (at most "
+       f"{NYQUIST_SAFE_FRACTION:g} x sample rate; core/band.py) and the data are decimated "
+       "to match (decimation 0); rechecked every 2 s of data, it then only widens (structure "
+       "twice in a row above 0.85 of it); a band change rebuilds the estimator from the last "
+       "10 s of raw data, the tracks are kept", lo=0.0, hi=50000.0, unit="Hz"),
     _p("damping_min", float, 0.0, "Smallest damping ratio of a reported mode [-]",
        lo=0.0, hi=1.0),
     _p("damping_max", float, 0.5, "Largest damping ratio of a reported mode [-]",
@@ -259,17 +265,25 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int) 
     return max(need, 2, min(35, round(AUTO_WINDOW_ROWS / (2 * (n_inputs + n_outputs)))))
 
 
-def decimation_factor(values: dict[str, Any], fs: float) -> int:
+def decimation_factor(values: dict[str, Any], fs: float, auto_edge: float = math.nan) -> int:
     """Decimation factor to the identification rate: ``decimation`` when > 0, else automatic
-    (:func:`sysid_node.decimation.auto_factor`)."""
+    (:func:`sysid_node.decimation.auto_factor`) for ``freq_max``, or with ``freq_max: 0`` for
+    the automatic band's edge ``auto_edge`` [Hz] (NaN while it is being chosen: no decimation)."""
     k = int(values.get("decimation", 0))
-    return k if k > 0 else auto_factor(fs, float(values.get("freq_max", 0.0)))
+    if k > 0:
+        return k
+    fmax = float(values.get("freq_max", 0.0))
+    return auto_factor(fs, fmax if fmax > 0 else auto_edge)
 
 
-def effective_band(values: dict[str, Any], fs: float) -> tuple[float, float]:
-    """(fmin, fmax) [Hz] with ``freq_max = 0`` resolved to the safe fraction of ``fs`` (pass the
-    identification rate)."""
+def effective_band(values: dict[str, Any], fs: float,
+                   auto_edge: float = math.nan) -> tuple[float, float]:
+    """(fmin, fmax) [Hz] with ``freq_max = 0`` resolved to the automatic band's edge
+    ``auto_edge`` [Hz] (``core/band.py``; NaN while unknown), never above the safe fraction of
+    ``fs`` (pass the identification rate)."""
     fmax = float(values.get("freq_max", 0.0))
     if fmax <= 0:
         fmax = NYQUIST_SAFE_FRACTION * fs if math.isfinite(fs) and fs > 0 else math.inf
+        if math.isfinite(auto_edge) and auto_edge > 0:
+            fmax = min(fmax, auto_edge)
     return float(values.get("freq_min", 0.0)), fmax

@@ -13,6 +13,7 @@ structural ones rebuild it (reported through ``log``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -103,13 +104,22 @@ class Pipeline:
         self._sensors: SensorChecks | None = None
         self._band_key: tuple | None = None
         self._band_reason = ""
+        #: automatic band (freq_max 0): its upper edge [Hz] (NaN until chosen) and the recent
+        #: raw data for the checks and rebuilds
+        self.band_edge = math.nan
+        self.estimator_band_max = math.inf
+        self._raw: list[Chunk] = []
+        self._next_check_ns: int | None = None
+        self._widen_votes = 0
 
-    def _build_estimator(self, n_outputs: int, n_inputs: int) -> None:
+    def _build_estimator(self, n_outputs: int, n_inputs: int, keep_tracks: bool = False) -> None:
         RecursiveDSRA, ModeTracker = self._core
         v = self.values
-        self.decimator = Decimator(P.decimation_factor(v, self.sample_rate), self.sample_rate)
+        self.decimator = Decimator(P.decimation_factor(v, self.sample_rate, self.band_edge),
+                                   self.sample_rate)
         fs = self.identification_rate
-        fmin, fmax = P.effective_band(v, fs)
+        fmin, fmax = self.band
+        self.estimator_band_max = fmax
         self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs)
         top = n_outputs * (self.block_rows - 1)  # largest order the Hankel rows allow
         max_order = min(v["max_order"], top) if v["max_order"] else None
@@ -127,9 +137,10 @@ class Pipeline:
             stabilize=v["spurious_rejection"],
             frequency_gate=v["tracking_frequency_tolerance"],
         )
-        self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
+        if not (keep_tracks and self.tracker is not None):
+            self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
+            self._tracked: list = []
         self._recent = _Recent(int(RESIDUAL_WINDOW_S * fs) if np.isfinite(fs) else 0)
-        self._tracked: list = []
         self._layout = (n_outputs, n_inputs)
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
         rate = f"{fs:g} Hz"
@@ -172,7 +183,19 @@ class Pipeline:
         factor is fixed when the estimator is built); NaN while unknown."""
         if self.decimator is not None:
             return self.decimator.rate
-        return self.sample_rate / P.decimation_factor(self.values, self.sample_rate)
+        return self.sample_rate / P.decimation_factor(self.values, self.sample_rate,
+                                                      self.band_edge)
+
+    @property
+    def auto_band(self) -> bool:
+        """The band is chosen from the data (``freq_max: 0``; ``core/band.py``)."""
+        return self.values["freq_max"] <= 0
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """(fmin, fmax) [Hz] identified: the configured band, or the automatic one (0.4 x the
+        identification rate until it is chosen)."""
+        return P.effective_band(self.values, self.identification_rate, self.band_edge)
 
     @property
     def forgetting_factor(self) -> float:
@@ -301,13 +324,148 @@ class Pipeline:
 
     def _feed(self, c: Chunk, realize: bool = True) -> list[EstimateRecord]:
         """Queue a chunk; feed the estimator up to each publication instant it crosses.
-        ``realize=False``: absorb it without realizations or records (catching up)."""
+        ``realize=False``: absorb it without realizations or records (catching up). With the
+        automatic band, the band is chosen once BAND_PROBE_S of data are in and rechecked as
+        data come (a change rebuilds the estimator from the recent raw data)."""
         ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if c.reset or (self._layout is not None and self._layout != (ny, nu)):
             self._pending.clear()
             if self.estimator is not None:
                 self.log("channel layout or time line changed: estimator reset")
             self.estimator = None
+            self._raw = []
+            self.band_edge = math.nan
+            self._next_check_ns = None
+        if not self.auto_band:
+            return self._feed_estimator(c, realize)
+        self._layout = (ny, nu)
+        records: list[EstimateRecord] = []
+        while len(c):  # cut at the sample a check is due: chunking changes nothing
+            k = self._samples_to_check(c)
+            part, c = _slice(c, 0, k), _slice(c, k, len(c))
+            self._keep_raw(part)
+            records += self._feed_estimator(part, realize)
+            last = int(part.stamps_ns[-1])
+            if not math.isfinite(self.band_edge):
+                if self._raw_count() >= self._probe_samples():
+                    self._choose_band()
+            elif self._next_check_ns is not None and last >= self._next_check_ns:
+                self._recheck_band(last)
+        return records
+
+    # ---- automatic band (freq_max 0; core/band.py) ----
+    def _probe_samples(self) -> int:
+        return int(max(BAND_PROBE_S * self.sample_rate, BAND_PROBE_MIN_SAMPLES))
+
+    def _samples_to_check(self, c: Chunk) -> int:
+        """Samples of ``c`` up to the one at which the next band check is due (all of them
+        when none is due within ``c``)."""
+        if not math.isfinite(self.band_edge):
+            return int(min(max(self._probe_samples() - self._raw_count(), 1), len(c)))
+        if self._next_check_ns is None:
+            return len(c)
+        return int(min(np.searchsorted(c.stamps_ns, self._next_check_ns, side="left") + 1,
+                       len(c)))
+
+    def _raw_count(self) -> int:
+        return sum(len(r) for r in self._raw)
+
+    def _keep_raw(self, c: Chunk) -> None:
+        """The raw data of the last BAND_CHECK_WINDOW_S (at least twice the probe), trimmed
+        by sample stamps (for the checks and rebuilds)."""
+        if not len(c):
+            return
+        self._raw.append(c)
+        fs = self.sample_rate
+        keep = round(max(BAND_CHECK_WINDOW_S, 2 * BAND_PROBE_MIN_SAMPLES / fs) * 1e9)
+        start = int(c.stamps_ns[-1]) - keep
+        while self._raw and self._raw[0].stamps_ns[-1] <= start:
+            self._raw.pop(0)
+        first = self._raw[0]
+        k = int(np.searchsorted(first.stamps_ns, start, side="right"))
+        if k:
+            self._raw[0] = _slice(first, k, len(first))
+
+    def _raw_arrays(self) -> tuple[np.ndarray, np.ndarray | None]:
+        y = np.concatenate([r.y for r in self._raw])
+        u = None if self._raw[0].u is None else np.concatenate([r.u for r in self._raw])
+        return y, u
+
+    def _band_from_raw(self, prominence: float = 1.0, ratio_factor: float = 1.0):
+        from sysid_node.core.band import structure_band
+
+        t0 = time.perf_counter()
+        y, u = self._raw_arrays()
+        choice = structure_band(y, u, self.sample_rate, prominence, ratio_factor)
+        self.update_seconds += time.perf_counter() - t0
+        return choice
+
+    def _choose_band(self) -> None:
+        """The band, once BAND_PROBE_S of data are in (the estimator ran on the full safe band
+        until then): when it is narrower, the estimator is rebuilt for it from the raw data
+        (decimated to match), keeping the tracks."""
+        choice = self._band_from_raw()
+        self.band_edge = choice.fmax_hz
+        self._next_check_ns = int(self._raw[-1].stamps_ns[-1]) + round(BAND_CHECK_PERIOD_S * 1e9)
+        self._widen_votes = 0
+        top = f"{choice.top_hz:.4g} Hz" if choice.found else "none"
+        self.log(f"automatic band 0-{self.band[1]:g} Hz (structure above the noise floor up "
+                 f"to {top})")
+        factor = P.decimation_factor(self.values, self.sample_rate, self.band_edge)
+        if factor != self.decimator.factor or self.band[1] < self.estimator_band_max:
+            self._rebuild_from_raw()
+
+    def _recheck_band(self, last_ns: int) -> None:
+        """Recheck the band on the recent raw data; widen it (rebuild the estimator from those
+        data, keeping the tracks) when a clear peak (WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR: not
+        the roll-off of a strong mode) shows above WIDEN_FRACTION of it on two
+        successive checks. It never narrows (no rebuild for a quiet spell)."""
+        self._next_check_ns = last_ns + round(BAND_CHECK_PERIOD_S * 1e9)
+        choice = self._band_from_raw(WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR)
+        if not (choice.found and choice.top_hz > WIDEN_FRACTION * self.band_edge
+                and choice.fmax_hz > self.band_edge):
+            self._widen_votes = 0
+            return
+        self._widen_votes += 1
+        if self._widen_votes < 2:
+            return
+        self._widen_votes = 0
+        self.band_edge = choice.fmax_hz
+        self.log(f"automatic band widened to 0-{self.band_edge:g} Hz (structure up to "
+                 f"{choice.top_hz:.4g} Hz): estimator rebuilt from the last "
+                 f"{BAND_CHECK_WINDOW_S:g} s of data")
+        self._rebuild_from_raw()
+
+    def _rebuild_from_raw(self) -> None:
+        """A new estimator (and decimator) for the current band, fed the recent raw data
+        without realizations or records, one block per contiguous segment (as the raw data
+        are, however they were chunked); the tracker keeps its tracks, and the residual
+        window its data when the identification rate is unchanged."""
+        self._pending.clear()
+        skipped = self.ingest.counters.get("estimates_skipped", 0)
+        samples = self.update_samples
+        rate, recent, last_bucket = self.identification_rate, self._recent, self._last_bucket
+        self._build_estimator(*self._layout, keep_tracks=True)
+        segments: list[list[Chunk]] = []
+        for r in self._raw:
+            if r.new_segment or not segments:
+                segments.append([])
+            segments[-1].append(r)
+        for k, seg in enumerate(segments):
+            # gaps inside restart the window as they did
+            whole = dataclasses.replace(_concat(seg), new_segment=bool(k), reset=False)
+            self._feed_estimator(whole, realize=False)
+        if self.identification_rate == rate:
+            self._recent = recent
+        if last_bucket is not None and self._last_bucket is not None:
+            self._last_bucket = max(self._last_bucket, last_bucket)
+        self.ingest.counters["estimates_skipped"] = skipped
+        self.update_samples = samples
+
+    def _feed_estimator(self, c: Chunk, realize: bool = True) -> list[EstimateRecord]:
+        """Decimate a chunk and feed it to the estimator (built at its first chunk) up to each
+        publication instant it crosses."""
+        ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if self.estimator is None:
             self._build_estimator(ny, nu)
             self._last_bucket = None
@@ -328,6 +486,9 @@ class Pipeline:
         half = round(5e8 / self.identification_rate)
         bucket = (c.stamps_ns + half) // self._bucket_ns()
         prev = bucket[0] if self._last_bucket is None else self._last_bucket
+        # a period is crossed once: the running largest bucket (a rebuild at a new rate moves
+        # the half-period slack, and a stamp may fall back into the period before)
+        bucket = np.maximum.accumulate(np.concatenate(([prev], bucket)))[1:]
         cross = np.flatnonzero(np.diff(np.concatenate(([prev], bucket))) != 0)
         if not realize:
             self._pending.append(c)
@@ -355,15 +516,7 @@ class Pipeline:
         self._pending.clear()
         if not parts:
             return
-        if len(parts) == 1:
-            self._update(parts[0])
-            return
-        self._update(Chunk(
-            stamps_ns=np.concatenate([p.stamps_ns for p in parts]),
-            y=np.concatenate([p.y for p in parts]),
-            u=None if parts[0].u is None else np.concatenate([p.u for p in parts]),
-            new_segment=parts[0].new_segment,
-        ))
+        self._update(_concat(parts))
 
     def _absorb_only(self) -> None:
         """Feed the held samples without realizing a model (catching up): the realization
@@ -414,7 +567,7 @@ class Pipeline:
         ``max_modes`` candidates: the stable ones first, then by contribution (scale-free, the
         tracker's ranking; :func:`~sysid_node.core.modal.select_modes`)."""
         v = self.values
-        fmin, fmax = P.effective_band(v, self.identification_rate)
+        fmin, fmax = self.band
         modes = [
             m for m in modes
             if fmin <= m.frequency_hz <= fmax
@@ -467,7 +620,7 @@ class Pipeline:
         pe = np.asarray(_get(est, "prediction_error_rms", default=np.full(self._layout[0], np.nan)),
                         dtype=float).reshape(-1)
         self.records_made += 1
-        band = P.effective_band(self.values, self.identification_rate)
+        band = self.band
         status = est.status() if hasattr(est, "status") else None  # estimator-side health
         return EstimateRecord(
             stamp_ns=stamp_ns,
@@ -522,7 +675,11 @@ class Pipeline:
         if reason:
             return reason
         structural = P.structural_changes(self.values, changes)
-        if self.decimator is not None and P.decimation_factor(new, fs) != self.decimator.factor:
+        if (self.values["freq_max"] <= 0) != (new["freq_max"] <= 0):
+            structural.append("automatic band")  # choosing it from the data, or leaving it
+        elif self.decimator is not None and (
+            P.decimation_factor(new, fs, self.band_edge) != self.decimator.factor
+        ):
             structural.append("decimation factor")  # e.g. auto decimation and a new freq_max
         self.values = new
         if structural:
@@ -557,7 +714,8 @@ class Pipeline:
         if {"forgetting_factor", "memory_time_constant"} & changes.keys():
             est.set_forgetting_factor(P.effective_lambda(v, fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
-            est.set_band(P.effective_band(v, fs), (v["damping_min"], v["damping_max"]))
+            est.set_band(P.effective_band(v, fs, self.band_edge),
+                         (v["damping_min"], v["damping_max"]))
         if "max_modes" in changes and hasattr(self.tracker, "max_tracked"):
             self.tracker.max_tracked = v["max_modes"]
         if "max_modes" in changes:
@@ -572,6 +730,18 @@ class Pipeline:
                 est.realization_interval = self._realization_interval()
 
 
+#: Automatic band (freq_max 0): data before the band is chosen [s] and [samples] (the
+#: larger), the period of its rechecks [s of data], the recent raw data they look at [s], and
+#: the fraction of the band above which a clear peak (prominence and ratio factor of
+#: core/band.structure_band) widens it (hysteresis: the band is half an octave above the
+#: structure when chosen, so a mode may rise by ~27 % before a rebuild).
+BAND_PROBE_S = 4.0
+BAND_PROBE_MIN_SAMPLES = 512
+BAND_CHECK_PERIOD_S = 2.0
+BAND_CHECK_WINDOW_S = 10.0
+WIDEN_FRACTION = 0.85
+WIDEN_PROMINENCE = 2.0
+WIDEN_RATIO_FACTOR = 4.0
 #: Residual samples needed before a spectrum is made (a few Welch segments).
 SPECTRUM_MIN_SAMPLES = 256
 #: Recent data the residual spectrum is computed over [s].
@@ -624,6 +794,18 @@ def _rank_key(m: Any) -> float:
 
 def _finite(x: float) -> float:
     return x if math.isfinite(x) else -math.inf
+
+
+def _concat(parts: list[Chunk]) -> Chunk:
+    """One chunk of consecutive pieces (a new segment if the first one is)."""
+    if len(parts) == 1:
+        return parts[0]
+    return Chunk(
+        stamps_ns=np.concatenate([p.stamps_ns for p in parts]),
+        y=np.concatenate([p.y for p in parts]),
+        u=None if parts[0].u is None else np.concatenate([p.u for p in parts]),
+        new_segment=parts[0].new_segment,
+    )
 
 
 def _slice(c: Chunk, a: int, b: int) -> Chunk:

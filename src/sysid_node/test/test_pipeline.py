@@ -57,7 +57,9 @@ def records(paper):
 def test_records_timed_by_data(records):
     times = np.array([_t(r) for r in records])
     assert np.allclose(np.diff(times), 0.1, atol=1e-6)
-    assert records[-1].samples_used >= 2500
+    # the automatic band widens when the 6 Hz mode appears (20 s): the estimator is rebuilt
+    # from the last 10 s of data
+    assert records[-1].samples_used >= 1000
     assert all(r.sample_rate == pytest.approx(FS) for r in records)
 
 
@@ -208,7 +210,9 @@ def test_residual_spectrum_shows_what_the_model_misses(paper, order):
     model leaves it near its white floor before the 6 Hz mode appears; a one-mode model
     (order 2, it takes the 2 Hz mode) leaves the 4 Hz mode as a peak far above the floor."""
     stamps, u, y = paper
-    pl = Pipeline({"residual_spectrum_rate": 1.0, "max_order": order})
+    # the full safe band (as a configured one): a narrower automatic band leaves the content
+    # above it in the residual
+    pl = Pipeline({"residual_spectrum_rate": 1.0, "max_order": order, "freq_max": 40.0})
     if order:  # named channels label their spectra; unnamed ones are y0, y1, ...
         pl.set_channel_names("output", ["tip_acc[m/s^2]"])
     spectra = []

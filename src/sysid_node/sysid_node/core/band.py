@@ -1,0 +1,140 @@
+"""Automatic frequency band: where does the response have structure above its noise floor?
+
+Used when no band is configured (``freq_max: 0``, issue #10 item 3). The recursive DSRA of
+Mehra & Prasanth (2004) identifies every mode of the data in ``[0, 0.4 fs]``: a 256 Hz record
+whose modes lie below 10 Hz is then identified over 0-100 Hz with a model order spent on noise,
+and at a rate whose Hankel horizon (block rows i over fs, Eq. (A1)) is too short for the lowest
+modes. This module finds the band from the data, with no model:
+
+1. the Welch power spectral density of each output (Hann segments of ``nperseg`` samples,
+   half overlap), normalised by that channel's robust *noise floor*: the ``FLOOR_QUANTILE``
+   quantile of its PSD over the bins in ``(0, fs/2]`` (a measurement noise floor is the lowest
+   level of a spectrum; structure only adds to it);
+2. a bin has *structure* when it is a peak (not below its neighbours) of the largest ratio
+   over the channels and exceeds ``STRUCTURE_RATIO`` times the floor (with at least ``MIN_SEGMENTS``
+   averaged segments a noise bin reaches half that ratio with a probability far below 1e-6
+   per bin);
+3. the band reaches ``EDGE_MARGIN`` above the upper edge of the highest such bin,
+   so that a mode may rise before the band has to widen, and never above ``0.4 fs``.
+
+The test errs on the safe side: anything above the floor that is not a mode (a flat
+accelerometer feed-through, rising sensor noise, an excitation's own peaks) only widens the
+band back towards ``0.4 fs``, which is what a configured ``freq_max: 0`` gave before. The
+pipeline (``pipeline.py``) decimates to match the band (``decimation.auto_factor``) and rechecks
+it as data come (a widening only; see ``params.py``, ``freq_max``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+#: The band reaches this factor (half an octave) above the highest bin with structure.
+EDGE_MARGIN = 1.5
+#: Largest band edge as a fraction of the sample rate (80 % of Nyquist).
+MAX_EDGE_FRACTION = 0.4
+#: A bin has structure when its PSD exceeds the noise floor by this factor (about 9 dB).
+STRUCTURE_RATIO = 8.0
+#: Quantile of a channel's PSD over frequency taken as its noise floor.
+FLOOR_QUANTILE = 0.05
+#: Fewest Welch segments averaged (fewer: no band is chosen from these data).
+MIN_SEGMENTS = 7
+#: Span (relative frequency, at least PEAK_MIN_BINS bins) of the prominence test of a peak.
+PEAK_SPAN = 0.1
+PEAK_MIN_BINS = 3
+#: Longest Welch segment [samples] (finer resolution than fs/1024 is not needed for the edge).
+MAX_SEGMENT = 1024
+
+
+@dataclass(frozen=True)
+class BandChoice:
+    """Result of :func:`structure_band`: ``fmax_hz`` the upper band edge [Hz] (``0.4 fs`` when
+    no structure was found or the data are too short), ``top_hz`` the upper edge of the
+    highest bin with structure (NaN if none), ``resolution_hz`` the Welch bin width."""
+
+    fmax_hz: float
+    top_hz: float
+    resolution_hz: float
+
+    @property
+    def found(self) -> bool:
+        return bool(math.isfinite(self.top_hz))
+
+
+def segment_length(n_samples: int) -> int:
+    """Welch segment length for ``n_samples``: the largest power of two with at least
+    ``MIN_SEGMENTS`` half-overlapping segments, at most ``MAX_SEGMENT``; 0 when shorter than
+    16 samples per segment."""
+    longest = 2 * n_samples // (MIN_SEGMENTS + 1)
+    if longest < 16:
+        return 0
+    return int(min(MAX_SEGMENT, 1 << (longest.bit_length() - 1)))
+
+
+def structure_ratio(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """(f, ratio): bin frequencies [Hz] and, per bin, the largest over the channels of the PSD
+    over that channel's noise floor; empty arrays when the data are too short."""
+    y = np.asarray(y, dtype=float)
+    y = y.reshape(len(y), -1)
+    nseg = segment_length(y.shape[0])
+    if nseg == 0 or not np.all(np.isfinite(y)):
+        return np.zeros(0), np.zeros(0)
+    f, p = signal.welch(y, fs=fs, nperseg=nseg, axis=0, detrend="constant")
+    f, p = f[1:], p[1:]  # the DC bin holds offsets and drift, not structure
+    floor = np.quantile(p, FLOOR_QUANTILE, axis=0)
+    ok = floor > 0  # a constant channel has no floor and no structure
+    ratio = np.zeros_like(p)
+    ratio[:, ok] = p[:, ok] / floor[ok]
+    return f, ratio.max(axis=1)
+
+
+def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
+                   prominence: float = 1.0, ratio_factor: float = 1.0) -> BandChoice:
+    """The band ``[0, fmax]`` for the outputs ``y`` (N, l) and the inputs ``u`` (N, m) or None
+    sampled at ``fs`` [Hz]. A measured input counts as a channel too: a multisine's lines (or
+    any input structure) are where the response is excited, so the band reaches above them.
+    ``prominence``: see :func:`_peaks`; ``ratio_factor`` multiplies ``STRUCTURE_RATIO`` (the
+    pipeline's rechecks, which may widen the band and rebuild the estimator, ask for clear
+    evidence: 2 and 4; the first choice takes every peak above the ratio)."""
+    full = MAX_EDGE_FRACTION * fs
+    y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    if u is not None and np.size(u):
+        y = np.hstack([y, np.asarray(u, dtype=float).reshape(len(y), -1)])
+    f, ratio = structure_ratio(y, fs)
+    if f.size == 0:
+        return BandChoice(full, math.nan, math.nan)
+    df = float(f[1] - f[0]) if f.size > 1 else float(f[0])
+    hit = np.flatnonzero(_peaks(ratio, prominence) & (ratio > ratio_factor * STRUCTURE_RATIO))
+    if hit.size == 0:
+        return BandChoice(full, math.nan, df)
+    top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
+    return BandChoice(min(EDGE_MARGIN * top, full), top, df)
+
+
+def _peaks(ratio: np.ndarray, prominence: float = 1.0) -> np.ndarray:
+    """Bins not below their neighbours: the window leakage of a lightly damped mode lifts the
+    bins beside its peak above the floor too, and would move the edge by a few bins. The
+    roll-off of a strong mode can still show local maxima from the estimate's scatter (the
+    safe side for a first choice); with ``prominence`` > 1 a peak must also stand that factor
+    above the lowest ratio within ``PEAK_SPAN`` of its frequency (and ``PEAK_MIN_BINS`` bins)
+    on both sides, which a roll-off never does on its rising side and a new lightly damped
+    mode does (one with 5 % damping falls four times 10 % away from its peak)."""
+    n = ratio.size
+    if n < 2:
+        return np.ones(n, bool)
+    left = np.r_[-np.inf, ratio[:-1]]
+    right = np.r_[ratio[1:], -np.inf]
+    peak = (ratio >= left) & (ratio >= right)
+    if prominence <= 1.0:
+        return peak
+    k = np.arange(n)
+    j = np.maximum(PEAK_MIN_BINS, np.ceil(PEAK_SPAN * (k + 1))).astype(int)  # bin k: (k+1) df
+    steps = np.arange(1, int(j.max()) + 1)
+    within = steps[None, :] <= j[:, None]
+    lo = np.where(within, ratio[np.clip(k[:, None] - steps[None, :], 0, n - 1)], np.inf)
+    hi = np.where(within, ratio[np.clip(k[:, None] + steps[None, :], 0, n - 1)], np.inf)
+    dip = np.maximum(lo.min(axis=1), hi.min(axis=1))
+    return peak & (ratio >= prominence * dip)

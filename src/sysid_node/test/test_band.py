@@ -1,0 +1,133 @@
+"""Automatic band (issue #10 item 3): ``core/band.py`` and the pipeline with ``freq_max: 0``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+from sysid_node.core.band import MAX_EDGE_FRACTION, structure_band
+from sysid_node.decimation import auto_factor
+from sysid_node.pipeline import Pipeline
+from sysid_node.scenarios import draw_modal_scenario
+
+T0 = 1_700_000_000 * 10**9
+
+
+def _resonance(rng, fs, f, zeta, n, level=1.0):
+    """Response of a lightly damped mode to white noise (bilinear SDOF), RMS ``level``."""
+    w = 2 * np.pi * f
+    b, a = signal.bilinear([w * w], [1.0, 2 * zeta * w, w * w], fs)
+    x = signal.lfilter(b, a, rng.standard_normal(n + 2000))[2000:]
+    return level * x / x.std()
+
+
+def test_modes_in_white_noise_give_a_band_above_them():
+    rng = np.random.default_rng(1)
+    fs, n = 1000.0, 4000
+    y = _resonance(rng, fs, 12.0, 0.01, n) + _resonance(rng, fs, 31.0, 0.02, n, 0.5)
+    y = y + 0.05 * y.std() * rng.standard_normal(n)
+    ch = structure_band(y[:, None], None, fs)
+    assert ch.found
+    # the roll-off of a mode far above the noise can lift the edge (the safe side)
+    assert 31.0 <= ch.top_hz
+    assert 31.0 < ch.fmax_hz < 0.5 * MAX_EDGE_FRACTION * fs  # narrowed
+
+
+def test_white_noise_has_no_structure_and_keeps_the_full_band():
+    rng = np.random.default_rng(2)
+    for fs in (100.0, 1000.0):
+        ch = structure_band(rng.standard_normal((4000, 3)), None, fs)
+        assert not ch.found
+        assert ch.fmax_hz == pytest.approx(MAX_EDGE_FRACTION * fs)
+
+
+def test_too_little_data_keeps_the_full_band():
+    ch = structure_band(np.ones((40, 1)), None, 200.0)
+    assert not ch.found and ch.fmax_hz == pytest.approx(80.0)
+
+
+def test_multisine_input_lines_widen_the_band():
+    """A measured input's lines count: the response is excited (and identified) there."""
+    rng = np.random.default_rng(3)
+    fs, n = 500.0, 4000
+    t = np.arange(n) / fs
+    u = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 6)) for f in (3.0, 7.0, 60.0))
+    y = _resonance(rng, fs, 5.0, 0.01, n) + 0.02 * rng.standard_normal(n)
+    assert structure_band(y[:, None], None, fs).fmax_hz < 40.0
+    assert structure_band(y[:, None], u[:, None], fs).fmax_hz > 60.0
+
+
+def test_drawn_scenarios_keep_their_true_modes():
+    """The randomized suite's records (100-1000 Hz, 1-8 modes anywhere below 0.4 fs, 1-3
+    outputs, with and without an input): the band chosen from the first 4 s (as the pipeline
+    does) holds every true mode; some draws are narrowed. Known loss (1 of the 1500 draws
+    tried, seed 1024): 8 modes seen in acceleration under ambient excitation, the spectrum
+    above the noise almost everywhere, the weak top mode at 80 Hz (210 Hz) below the test's
+    ratio and the band ends at 57 Hz."""
+    lost, narrowed = [], 0
+    for seed in range(1000, 1100):
+        scn = draw_modal_scenario(np.random.default_rng(seed), duration_s=6.0, change=None)
+        n = int(max(4.0 * scn.fs, 512))
+        ch = structure_band(scn.y[:n], None if scn.u is None else scn.u[:n], scn.fs)
+        top = max(f for f, _ in scn.modes_at(0.0))
+        if top > ch.fmax_hz:
+            lost.append((seed, scn.fs, top, ch.fmax_hz))
+        narrowed += ch.fmax_hz < 0.5 * MAX_EDGE_FRACTION * scn.fs
+    assert len(lost) <= 1, lost
+    assert narrowed >= 5
+
+
+def _run(y, fs, params=None, block=50):
+    logs: list[str] = []
+    pl = Pipeline({"output_only": True, **(params or {})}, log=logs.append)
+    stamps = T0 + np.round(np.arange(len(y)) / fs * 1e9).astype(np.int64)
+    recs = []
+    for a in range(0, len(y), block):
+        pl.push_output(stamps[a : a + block], y[a : a + block])
+        recs += pl.step()
+    recs += pl.step(flush=True)
+    return pl, recs, logs
+
+
+def test_pipeline_chooses_the_band_decimates_and_keeps_every_record():
+    """freq_max 0: the band comes from the data, the estimator is rebuilt decimated to match
+    (a record every publication period throughout), and a 8 Hz mode at 1 kHz is
+    tracked."""
+    rng = np.random.default_rng(4)
+    fs, n = 1000.0, 20000
+    y = _resonance(rng, fs, 8.0, 0.01, n) + 0.05 * rng.standard_normal(n)
+    pl, recs, logs = _run(y[:, None], fs)
+    assert any("automatic band" in m for m in logs)
+    assert 8.0 < pl.band_edge < 100.0
+    assert pl.decimator.factor == auto_factor(fs, pl.band_edge) > 1
+    assert recs[-1].band_max_hz == pytest.approx(pl.band_edge)
+    assert recs[-1].sample_rate == pytest.approx(fs / pl.decimator.factor)
+    t = (np.array([r.stamp_ns for r in recs]) - T0) * 1e-9
+    assert t[0] < 0.1 + 1e-6  # estimates from the start, across the rebuild
+    assert np.allclose(np.diff(t), 0.1, atol=0.01)
+    tracked = [m.frequency_hz for m in recs[-1].modes if m.status == "tracked"]
+    assert any(abs(f / 8.0 - 1) < 0.01 for f in tracked), tracked
+
+
+def test_pipeline_widens_the_band_when_a_mode_appears_above_it():
+    rng = np.random.default_rng(5)
+    fs, n = 400.0, 16000
+    y = _resonance(rng, fs, 5.0, 0.01, n) + 0.05 * rng.standard_normal(n)
+    late = _resonance(rng, fs, 60.0, 0.01, n)
+    late[: n // 2] = 0.0
+    pl, recs, logs = _run((y + late)[:, None], fs)
+    first = recs[len(recs) // 4].band_max_hz
+    assert first < 30.0
+    assert any("widened" in m for m in logs), logs
+    assert recs[-1].band_max_hz > 60.0
+    tracked = [m.frequency_hz for m in recs[-1].modes if m.status == "tracked"]
+    assert any(abs(f / 5.0 - 1) < 0.03 for f in tracked), tracked  # the track was kept
+
+
+def test_configured_band_is_untouched():
+    rng = np.random.default_rng(6)
+    fs, n = 200.0, 2000
+    y = _resonance(rng, fs, 5.0, 0.01, n) + 0.05 * rng.standard_normal(n)
+    pl, recs, logs = _run(y[:, None], fs, {"freq_max": 50.0})
+    assert not any("automatic band" in m for m in logs)
+    assert recs[-1].band_max_hz == pytest.approx(50.0)
