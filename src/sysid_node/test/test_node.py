@@ -179,13 +179,9 @@ def _near(rec, f: float, tol: float = 0.02) -> bool:
 def test_parameters_command_line_file_and_services(data, harness, tmp_path):
     stamps, u, y = data
     params = tmp_path / "p.yaml"
-    # block_rows 16 and (below) lambda 0.95 leave the 2 Hz mode undetermined (delta-method
-    # 99 % interval wider than the 5 % gate): the spurious-mode tests rightly keep it out of
-    # the tracks, so they are off here, where the parameter handling is under test
     params.write_text(
         "sysid_node:\n  ros__parameters:\n    sample_rate: 100\n    block_rows: 24\n"
         "    publish_rate: 5.0\n    output_type: SignalBlock\n    input_type: SignalBlock\n"
-        "    spurious_rejection: false\n"
     )
     proc = start_node("--params-file", str(params), "-p", "forgetting_factor:=0.99",
                       "-p", "max_modes:=4", log=tmp_path / "node.log")
