@@ -135,7 +135,6 @@ class Pipeline:
             damping_bounds=(v["damping_min"], v["damping_max"]),
             max_modes=v["max_modes"],
             stabilize=v["spurious_rejection"],
-            frequency_gate=v["tracking_frequency_tolerance"],
         )
         if not (keep_tracks and self.tracker is not None):
             self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
@@ -709,8 +708,6 @@ class Pipeline:
             return
         if "spurious_rejection" in changes and hasattr(est, "stabilize"):
             est.stabilize = bool(v["spurious_rejection"])
-        if "tracking_frequency_tolerance" in changes and hasattr(est, "frequency_gate"):
-            est.frequency_gate = float(v["tracking_frequency_tolerance"])
         if {"forgetting_factor", "memory_time_constant"} & changes.keys():
             est.set_forgetting_factor(P.effective_lambda(v, fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():

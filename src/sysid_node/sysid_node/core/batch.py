@@ -103,13 +103,14 @@ def model_from_projection(
     time_s: float = float("nan"),
     riccati: bool = True,
     check: list[int] | None = None,
-    frequency_gate: float = 0.05,
+    frequency_gate: float | None = 0.05,
 ) -> IdentifiedModel:
     """Realize order ``order`` from a projection of scaled data and undo the channel scaling.
 
     ``riccati`` selects the Kalman gain from the Riccati equation (else K = S R^{-1}, cheaper).
     ``check``: model orders whose poles flag the spurious modes (``spurious.py``, with the
-    tracking ``frequency_gate``); the stable modes then come first when ``max_modes`` cuts.
+    tracking ``frequency_gate``, None: no determined-frequency test); the stable modes then
+    come first when ``max_modes`` cuts.
     """
     check = [c for c in (check or []) if 1 <= c <= max_order(proj) and c != order]
     basis = ShiftBasis(proj, max([order, *check]))

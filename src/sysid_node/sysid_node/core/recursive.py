@@ -92,8 +92,8 @@ class RecursiveDSRA:
     Outlier gate (``outlier_gate``, issue #13): see :meth:`_gate`; :meth:`status` reports the
     estimator's health. ``stabilize`` runs the multi-order spurious-mode tests of ``spurious.py``
     on every realization (``ModalParameters.stable``; off by default: on the paper's example
-    it delays the confirmation of a newly appeared mode beyond 1.5 s), with the tracking
-    ``frequency_gate``.
+    it delays the confirmation of a newly appeared mode beyond 1.5 s), without the batch's
+    determined-frequency test (the tracker judges consistency over successive realizations).
     """
 
     #: Largest number of samples queued before they are absorbed (see :meth:`update`).
@@ -123,7 +123,6 @@ class RecursiveDSRA:
         change_window: int = 20,
         change_discount: float = 0.3,
         stabilize: bool = False,
-        frequency_gate: float = 0.05,
         outlier_gate: bool = True,
         outlier_alpha: float = 1e-4,
     ) -> None:
@@ -158,7 +157,6 @@ class RecursiveDSRA:
         self.change_window = int(change_window)
         self.change_discount = float(change_discount)
         self.stabilize = bool(stabilize)
-        self.frequency_gate = float(frequency_gate)
         self.outlier_gate = bool(outlier_gate)
         # Markov's inequality on sum_c x_c^2 / E x_c^2: exceeded with probability <= l / t for
         # ANY distribution (heavy tails, bursts), so t = channels / alpha is distribution-free
@@ -638,7 +636,7 @@ class RecursiveDSRA:
                 time_s=t_now,
                 riccati=False,
                 check=check_orders(n, lay.l * (lay.i - 1)) if self.stabilize else None,
-                frequency_gate=self.frequency_gate,
+                frequency_gate=None,
             )
         except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
             self.realizations_skipped += 1
