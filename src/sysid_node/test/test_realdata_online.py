@@ -1,0 +1,83 @@
+"""Online identification of the real steel frame (issue #10 item 6) through the node's own
+``Pipeline``: ``../shared/realdata/steel_frame`` setups 1 and 8 separately (5 channels at
+256 Hz, output-only ambient, 240 s, 8 reference modes 1.229-9.664 Hz, damping about 0.2 %).
+
+(a) ``freq_max: 12, max_modes: 10`` only: every reference mode tracked within 1 % in the final
+estimate, and within 1 % in at least 80 % of the estimates of the last 120 s;
+(b) all defaults (only ``output_only``): at most 10 tracked modes in every estimate after 30 s,
+and at least 6 of the 8 reference modes within 1 % among them.
+
+Skipped with a one-line reason when the folder is absent; the files are read in place.
+``benchmarks/steel_frame_online.py`` prints the per-mode table (errors, time to first within
+1 %, false tracked count)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sysid_node.pipeline import Pipeline
+
+REALDATA = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"
+FS = 256.0
+T0 = 1_700_000_000 * 10**9
+REFERENCE_HZ = np.array([1.229, 1.436, 2.100, 4.017, 4.769, 6.683, 7.616, 9.664])
+
+
+def _frame(setup: int) -> np.ndarray:
+    path = REALDATA / "steel_frame" / f"measurement_{setup}" / f"measurement_{setup}.npy"
+    if not path.is_file():
+        pytest.skip(f"steel frame not found at {path}")
+    return np.load(path)[:, :5]
+
+
+def _run(y: np.ndarray, params: dict, block: int = 64):
+    pl = Pipeline({"output_only": True, **params})
+    stamps = T0 + np.round(np.arange(len(y)) / FS * 1e9).astype(np.int64)
+    recs = []
+    for a in range(0, len(y), block):
+        pl.push_output(stamps[a : a + block], y[a : a + block])
+        recs += pl.step()
+    recs += pl.step(flush=True)
+    t = np.array([(r.stamp_ns - T0) * 1e-9 for r in recs])
+    tracked = [np.array([m.frequency_hz for m in r.modes if m.status == "tracked"])
+               for r in recs]
+    return t, tracked
+
+
+def _within(freqs: np.ndarray, tol: float = 0.01) -> np.ndarray:
+    """Per reference mode: a frequency of ``freqs`` within ``tol``."""
+    if freqs.size == 0:
+        return np.zeros(REFERENCE_HZ.size, bool)
+    return np.min(np.abs(freqs[None, :] / REFERENCE_HZ[:, None] - 1), axis=1) <= tol
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured 21:50 (benchmarks/steel_frame_online.py): 2.100 Hz is absent from the final "
+    "estimate (7 of 8 tracked within 1 %, setups 1 and 8) and the last-120-s shares of 1.229/1.436/"
+    "2.100 Hz are 0.16/0.40/0.36 (setup 1), 0.80/0.70/0.22 (setup 8): estimator side"))
+@pytest.mark.parametrize("setup", [1, 8])
+def test_frame_with_the_band_given(setup):
+    t, tracked = _run(_frame(setup), {"freq_max": 12.0, "max_modes": 10})
+    ok = np.array([_within(f) for f in tracked])
+    late = t >= t[-1] - 120.0
+    assert ok[-1].all(), (REFERENCE_HZ[~ok[-1]], np.sort(tracked[-1]))
+    share = ok[late].mean(axis=0)
+    assert np.all(share >= 0.8), np.round(share, 2)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured 21:50: the frame's spectra have peaks up to 67-96 Hz, so the automatic band "
+    "stays 0-100 Hz, and max_modes 5 (default) tracks at most 3 modes there: 0 of the 8 "
+    "reference modes within 1 % in some estimates after 30 s (needs max_modes >= 6 at least)"))
+@pytest.mark.parametrize("setup", [1, 8])
+def test_frame_with_defaults(setup):
+    t, tracked = _run(_frame(setup), {})
+    after = t >= 30.0
+    counts = np.array([f.size for f, a in zip(tracked, after, strict=True) if a])
+    found = np.array([_within(f).sum() for f, a in zip(tracked, after, strict=True) if a])
+    assert counts.max() <= 10, counts.max()
+    assert found.min() >= 6, (found.min(), np.bincount(found))
