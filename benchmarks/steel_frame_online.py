@@ -21,12 +21,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from sysid_node.pipeline import Pipeline
+from sysid_node.suite import T0_NS as T0
+from sysid_node.suite import run_output_only
 
 ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / "steel_frame"
 REFERENCE_HZ = np.array([1.229, 1.436, 2.100, 4.017, 4.769, 6.683, 7.616, 9.664])
 FS = 256.0
-T0 = 1_700_000_000 * 10**9
 CASES = {"a": {"freq_max": 12.0, "max_modes": 10}, "b": {}}
 
 
@@ -38,13 +38,8 @@ def load(setup: int) -> np.ndarray | None:
 def run(y: np.ndarray, params: dict, block: int = 64) -> tuple[list, list[str]]:
     """Records of the pipeline over ``y`` pushed in messages of ``block`` samples."""
     logs: list[str] = []
-    pl = Pipeline({"output_only": True, **params}, log=logs.append)
-    stamps = T0 + np.round(np.arange(len(y)) / FS * 1e9).astype(np.int64)
-    recs = []
-    for a in range(0, len(y), block):
-        pl.push_output(stamps[a : a + block], y[a : a + block])
-        recs += pl.step()
-    return recs + pl.step(flush=True), logs
+    _, recs = run_output_only(y, FS, params, block, logs.append)
+    return recs, logs
 
 
 def tracked(r) -> np.ndarray:

@@ -83,6 +83,20 @@ def run_pipeline(scn, params: dict | None = None) -> list[EstimateRecord]:
     return recs + pl.step(flush=True)
 
 
+def run_output_only(y: np.ndarray, fs: float, params: dict | None = None, block: int = 50,
+                    log=None) -> tuple[Pipeline, list[EstimateRecord]]:
+    """Feed an output-only record ``y`` (n, l) sampled at ``fs`` [Hz], stamped from ``T0_NS``,
+    to a Pipeline (defaults unless ``params``; ``log`` its log callback) in messages of
+    ``block`` samples, a step after each; returns the pipeline and its records."""
+    pl = Pipeline({"output_only": True, **(params or {})}, log)
+    stamps = T0_NS + np.round(np.arange(len(y)) / fs * 1e9).astype(np.int64)
+    recs: list[EstimateRecord] = []
+    for a in range(0, len(y), block):
+        pl.push_output(stamps[a : a + block], y[a : a + block])
+        recs += pl.step()
+    return pl, recs + pl.step(flush=True)
+
+
 def _tracked(r: EstimateRecord) -> np.ndarray:
     return np.array([m.frequency_hz for m in r.modes if m.status == "tracked"])
 

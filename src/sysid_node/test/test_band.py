@@ -7,10 +7,9 @@ import pytest
 from scipy import signal
 from sysid_node.core.band import MAX_EDGE_FRACTION, structure_band
 from sysid_node.decimation import auto_factor
-from sysid_node.pipeline import Pipeline
 from sysid_node.scenarios import draw_modal_scenario
-
-T0 = 1_700_000_000 * 10**9
+from sysid_node.suite import T0_NS as T0
+from sysid_node.suite import run_output_only
 
 
 def _resonance(rng, fs, f, zeta, n, level=1.0):
@@ -79,13 +78,7 @@ def test_drawn_scenarios_keep_their_true_modes():
 
 def _run(y, fs, params=None, block=50):
     logs: list[str] = []
-    pl = Pipeline({"output_only": True, **(params or {})}, log=logs.append)
-    stamps = T0 + np.round(np.arange(len(y)) / fs * 1e9).astype(np.int64)
-    recs = []
-    for a in range(0, len(y), block):
-        pl.push_output(stamps[a : a + block], y[a : a + block])
-        recs += pl.step()
-    recs += pl.step(flush=True)
+    pl, recs = run_output_only(y, fs, params, block, logs.append)
     return pl, recs, logs
 
 

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sysid_node.pipeline import Pipeline
+from sysid_node.suite import T0_NS as T0
+from sysid_node.suite import run_output_only
 
 REALDATA = Path(__file__).resolve().parents[3].parent / "shared" / "realdata"
 FS = 256.0
-T0 = 1_700_000_000 * 10**9
 REFERENCE_HZ = np.array([1.229, 1.436, 2.100, 4.017, 4.769, 6.683, 7.616, 9.664])
 
 
@@ -33,13 +33,7 @@ def _frame(setup: int) -> np.ndarray:
 
 
 def _run(y: np.ndarray, params: dict, block: int = 64):
-    pl = Pipeline({"output_only": True, **params})
-    stamps = T0 + np.round(np.arange(len(y)) / FS * 1e9).astype(np.int64)
-    recs = []
-    for a in range(0, len(y), block):
-        pl.push_output(stamps[a : a + block], y[a : a + block])
-        recs += pl.step()
-    recs += pl.step(flush=True)
+    _, recs = run_output_only(y, FS, params, block)
     t = np.array([(r.stamp_ns - T0) * 1e-9 for r in recs])
     tracked = [np.array([m.frequency_hz for m in r.modes if m.status == "tracked"])
                for r in recs]
