@@ -34,6 +34,34 @@ def _start(argv: list[str], log: Path) -> subprocess.Popen:
     return subprocess.Popen(argv, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
 
 
+def _wait_until_quiet(topic: str, quiet_s: float = 1.5, limit_s: float = 30.0) -> None:
+    """Return once ``topic`` has carried no message for ``quiet_s`` (at most ``limit_s``): on a
+    busy machine the nodes finish the replayed data seconds after the player, and a fixed pause
+    cut the end of the recording."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sysid_node.tools import msg_class
+
+    rclpy.init()
+    node = rclpy.create_node("demo_drain")
+    try:
+        t_end = time.monotonic() + limit_s
+        last = [time.monotonic()]
+        sub = None
+        while time.monotonic() < t_end and time.monotonic() - last[0] < quiet_s:
+            if sub is None:
+                names = dict(node.get_topic_names_and_types()).get(topic)
+                if names:
+                    sub = node.create_subscription(
+                        msg_class(names[0]), topic,
+                        lambda _raw: last.__setitem__(0, time.monotonic()),
+                        qos_profile_sensor_data, raw=True)
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
 def run_pipeline(bag: Path, out: Path, params: Path, rate: float) -> Path:
     """Replay ``bag`` through both nodes, record the outputs; return the recorded bag path."""
     logs = out / "logs"
@@ -88,7 +116,7 @@ def run_pipeline(bag: Path, out: Path, params: Path, rate: float) -> Path:
         (logs / "replay.log").write_text(replay.stdout + replay.stderr)
         if replay.returncode != 0:
             raise DemoError(f"replay failed: {(replay.stderr.strip().splitlines() or ['?'])[-1]}")
-        time.sleep(1.5)  # let the last estimate and filtered samples arrive
+        _wait_until_quiet("/vibration_filtered")  # the last filtered samples and estimates
     finally:
         for p in reversed(procs):
             stop_group(p)
