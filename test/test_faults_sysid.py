@@ -214,6 +214,13 @@ def test_gap_repaired_or_split(clean):
     assert pl.counters["output_repaired"] >= 2
     pl, recs = run(F.gap(F.gap(o, 900, 150), 400, 2), F.gap(i, 900, 150))
     assert pl.counters["gaps"] == 1 and right(recs[-1])
+    # the input pausing and coming back resets the estimator, not the tracker: the modes keep
+    # their ids (a notch bank keyed on them keeps its notches)
+    before = [r for r in recs if r.stamp_ns < T0 + int(9e9)][-1]
+    for f in (2.0, 4.0):
+        ids = [{m.id for m in r.modes if abs(m.frequency_hz / f - 1) <= 0.02
+                and m.status == "tracked"} for r in (before, recs[-1])]
+        assert ids[0] & ids[1], (f, ids)
     tally("handled", "gaps")
 
 

@@ -329,6 +329,11 @@ class Pipeline:
         ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if c.reset or (self._layout is not None and self._layout != (ny, nu)):
             self._pending.clear()
+            # the same outputs with an input stream that stopped or came back measure the same
+            # structure: the tracker keeps its modes (ids, status) through the estimator reset
+            # (a new time line, or other outputs, starts over)
+            self._keep_tracks = (self._layout is not None and self._layout[0] == ny
+                                 and self._layout[1] != nu)
             if self.estimator is not None:
                 self.log("channel layout or time line changed: estimator reset")
             self.estimator = None
@@ -466,7 +471,8 @@ class Pipeline:
         publication instant it crosses."""
         ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if self.estimator is None:
-            self._build_estimator(ny, nu)
+            self._build_estimator(ny, nu, keep_tracks=getattr(self, "_keep_tracks", False))
+            self._keep_tracks = False
             self._last_bucket = None
         elif c.new_segment:
             self._flush_pending()
