@@ -47,12 +47,20 @@ def _within(freqs: np.ndarray, tol: float = 0.01) -> np.ndarray:
     return np.min(np.abs(freqs[None, :] / REFERENCE_HZ[:, None] - 1), axis=1) <= tol
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
+def _open_line(reason: str):
+    """A slow real-data check over setups 1 and 8 of an acceptance line not met yet: a strict
+    xfail whose reason carries the measured figures (it fails as soon as the line holds)."""
+    def wrap(test):
+        test = pytest.mark.parametrize("setup", [1, 8])(test)
+        test = pytest.mark.xfail(strict=True, reason=reason)(test)
+        return pytest.mark.slow(test)
+    return wrap
+
+
+@_open_line(
     "measured 21:50 (benchmarks/steel_frame_online.py): 2.100 Hz is absent from the final "
     "estimate (7 of 8 tracked within 1 %, setups 1 and 8) and the last-120-s shares of 1.229/1.436/"
-    "2.100 Hz are 0.16/0.40/0.36 (setup 1), 0.80/0.70/0.22 (setup 8): estimator side"))
-@pytest.mark.parametrize("setup", [1, 8])
+    "2.100 Hz are 0.16/0.40/0.36 (setup 1), 0.80/0.70/0.22 (setup 8): estimator side")
 def test_frame_with_the_band_given(setup):
     t, tracked = _run(_frame(setup), {"freq_max": 12.0, "max_modes": 10})
     ok = np.array([_within(f) for f in tracked])
@@ -62,12 +70,10 @@ def test_frame_with_the_band_given(setup):
     assert np.all(share >= 0.8), np.round(share, 2)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
+@_open_line(
     "measured 21:50: the frame's spectra have peaks up to 67-96 Hz, so the automatic band "
     "stays 0-100 Hz, and max_modes 5 (default) tracks at most 3 modes there: 0 of the 8 "
-    "reference modes within 1 % in some estimates after 30 s (needs max_modes >= 6 at least)"))
-@pytest.mark.parametrize("setup", [1, 8])
+    "reference modes within 1 % in some estimates after 30 s (needs max_modes >= 6 at least)")
 def test_frame_with_defaults(setup):
     t, tracked = _run(_frame(setup), {})
     after = t >= 30.0
