@@ -214,14 +214,42 @@ def test_gap_repaired_or_split(clean):
     assert pl.counters["output_repaired"] >= 2
     pl, recs = run(F.gap(F.gap(o, 900, 150), 400, 2), F.gap(i, 900, 150))
     assert pl.counters["gaps"] == 1 and right(recs[-1])
-    # the input pausing and coming back resets the estimator, not the tracker: the modes keep
-    # their ids (a notch bank keyed on them keeps its notches)
+    # a gap in both streams is a gap, not an input stop (the output's first message after it
+    # arrives before the input's): the estimate is kept across it, and so are the mode ids
     before = [r for r in recs if r.stamp_ns < T0 + int(9e9)][-1]
+    assert recs[-1].samples_used > before.samples_used
+    _same_ids(before, recs[-1])
+    tally("handled", "gaps")
+
+
+def _same_ids(a, b) -> None:
     for f in (2.0, 4.0):
         ids = [{m.id for m in r.modes if abs(m.frequency_hz / f - 1) <= 0.02
-                and m.status == "tracked"} for r in (before, recs[-1])]
+                and m.status == "tracked"} for r in (a, b)]
         assert ids[0] & ids[1], (f, ids)
-    tally("handled", "gaps")
+
+
+def test_input_stop_and_return_keep_the_modes(clean):
+    """The input stops for 1.5 s while the outputs go on: output-only, then input-output again
+    (each a new estimator); the tracker keeps the modes, their ids and tracked status (a notch
+    bank keyed on them keeps its notches)."""
+    o, i = clean
+    i = F.gap(i, 900, 150)
+    pl = Pipeline({"sample_rate": FS, "realization_rate": 10.0, "publish_rate": 5.0,
+                   "residual_spectrum_rate": 0.0})
+    recs, k = [], 0
+    for a in range(0, len(o), 10):  # the input's samples arrive with the outputs of their time
+        pl.push_output(o.stamps_ns[a:a + 10], o.values[a:a + 10], o.names)
+        b = int(np.searchsorted(i.stamps_ns, o.stamps_ns[min(a + 9, len(o) - 1)], "right"))
+        if b > k:
+            pl.push_input(i.stamps_ns[k:b], i.values[k:b], i.names)
+            k = b
+        recs += pl.step()
+    recs += pl.step(flush=True)
+    before = [r for r in recs if r.stamp_ns < T0 + int(9e9)][-1]
+    assert recs[-1].samples_used < before.samples_used  # a new estimator after the return
+    assert right(recs[-1])
+    _same_ids(before, recs[-1])
 
 
 def test_signal_block_with_bad_period_is_an_error_with_a_reason():

@@ -303,7 +303,11 @@ class Ingest:
                 self.mode = "output_only"
                 self._event(f"no input samples within {INPUT_WAIT:g} s of data: output-only")
             return
-        stopped = self.out.max_t - self.inp.max_t > INPUT_WAIT
+        # stopped: INPUT_WAIT s of output DATA beyond the input's last stamp (a gap in both
+        # streams, whose output side resumes a message before the input side, is not a stop)
+        ahead = int(np.count_nonzero(self.out.t > self.inp.max_t)) if len(self.out.t) else 0
+        enough = not math.isfinite(self.fs) or ahead * self.period > INPUT_WAIT
+        stopped = self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
         if self.mode == "io" and (self.inp.rejected or stopped):
             self.mode = "output_only"
             why = "rejected" if self.inp.rejected else "stopped"
