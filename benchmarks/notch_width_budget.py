@@ -8,9 +8,10 @@ whether the frequency / damping standard deviations it is built on are calibrate
 truth, YAML and recording); ``--estimates`` takes the estimates from other bags instead (one per
 ``DIR``, e.g. ``sysid_node``'s ``offline`` output on ``DIR/drifting_mode``: deterministic, no
 DDS); ``--damping-window`` tries a damping median over a window of its own, ``--delay`` a mode
-model extrapolated by its drift rate times that delay (an identification that lags its stamp).
+model extrapolated by its drift rate times that delay, beyond the identifier's own lag that the
+node's model already takes from each estimate (``smoothing.estimator_memory``).
 Offline, no DDS: the recorded ``/modal_estimate`` messages are fed to the notch policy's mode
-model (:mod:`notch_filter_node.smoothing`, the window the node uses)
+model (:mod:`notch_filter_node.smoothing`, the window, memory and lag the node uses)
 for the estimate that tracks the true mode, and at every estimate after the first tracking one
 plus ``fade_time``:
 
@@ -45,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from notch_filter_node.policy import DRIFT_MEMORIES
 from rosbags.highlevel import AnyReader
 from sysid_node.bag_io import typestore
 
@@ -63,8 +65,9 @@ def _truth_at(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_estimates(out: Path, recorded: Path | None = None) -> tuple[list[tuple], float]:
-    """(t, [(id, status, f, f_std, zeta, zeta_std)]) per /modal_estimate, t from the bag start
-    (``recorded``: another bag with /modal_estimate, e.g. sysid_node's offline output)."""
+    """(t, [(id, status, f, f_std, zeta, zeta_std)], (memory, lag)) per /modal_estimate, t from
+    the bag start (``recorded``: another bag with /modal_estimate, e.g. sysid_node's offline
+    output); memory and lag: the identifier's (``smoothing.estimator_memory``)."""
     from sysid_node.bag_io import read_signals
 
     t0 = float(read_signals(out / "drifting_mode", ["/vibration"])["/vibration"].t[0])
@@ -77,7 +80,9 @@ def read_estimates(out: Path, recorded: Path | None = None) -> tuple[list[tuple]
             if msg.health != 0 or not msg.converged:
                 continue
             rows.append((t, [(m.id, m.status, m.frequency, m.frequency_std, m.damping_ratio,
-                              m.damping_ratio_std) for m in msg.modes]))
+                              m.damping_ratio_std) for m in msg.modes],
+                         SM.estimator_memory(msg.forgetting_factor, msg.sample_rate,
+                                             msg.block_rows)))
     rows.sort(key=lambda r: r[0])
     return rows, t0
 
@@ -93,13 +98,15 @@ def series(out: Path, recorded: Path | None = None, damping_window: float | None
     hist: dict[int, list] = {}
     rec = []
     first = None
-    for t, modes in rows:
+    for t, modes, (memory, lag) in rows:
+        win = max(cfg["drift_window"], DRIFT_MEMORIES * memory) if np.isfinite(memory) else \
+            cfg["drift_window"]  # the node's window (policy.NotchPolicy._window)
         ft, _ = _truth_at(truth, np.array(t))
         for mid, status, f, sf, z, sz in modes:
             if status == 1 and np.isfinite(f):
                 hist.setdefault(mid, []).append((t, f, sf, z, sz))
         for mid in list(hist):
-            hist[mid] = [p for p in hist[mid] if p[0] >= t - max(cfg["drift_window"], zwin)]
+            hist[mid] = [p for p in hist[mid] if p[0] >= t - max(win, zwin)]
         hit = [m for m in modes if m[1] == 1 and abs(m[2] / ft - 1.0) <= MATCH]
         if not hit:
             continue
@@ -109,8 +116,8 @@ def series(out: Path, recorded: Path | None = None, damping_window: float | None
             continue
         m = hit[0]
         h = np.array(hist[m[0]], dtype=float)
-        mm = SM.model(*h[h[:, 0] >= t - cfg["drift_window"]].T, cfg["drift_window"])
-        if zwin != cfg["drift_window"]:  # damping from a window of its own
+        mm = SM.model(*h[h[:, 0] >= t - win].T, win, memory, lag)
+        if damping_window is not None:  # damping from a window of its own
             mz = SM.model(*h[h[:, 0] >= t - zwin].T, zwin)
             mm = SM.ModeModel(mm.frequency, mm.frequency_std, mz.damping, mz.damping_std,
                               mm.drift, mm.drift_std, mm.n_eff)

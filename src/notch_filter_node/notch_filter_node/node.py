@@ -39,6 +39,7 @@ from rclpy.qos import (
 from sysid_node.node import ESTIMATE_QOS  # the publisher's QoS of /modal_estimate
 
 from notch_filter_node import params as P
+from notch_filter_node import smoothing as SM
 from notch_filter_node import stream as ST
 from notch_filter_node.adaptive import AdaptiveNotchFilter
 from notch_filter_node.policy import (
@@ -79,9 +80,10 @@ def estimate_input(msg: Any, received: float = math.nan) -> EstimateInput:
                           float(m.frequency), float(m.frequency_std), float(m.damping_ratio),
                           float(m.damping_ratio_std), float(m.amplitude)) for m in ms]
 
+    memory, lag = SM.estimator_memory(msg.forgetting_factor, msg.sample_rate, msg.block_rows)
     return EstimateInput(mc.stamp_ns(msg.header) * 1e-9, bool(msg.converged),
                          convert(msg.modes), int(msg.health), str(msg.health_reason), received,
-                         convert(msg.predicted_modes))
+                         convert(msg.predicted_modes), memory, lag)
 
 
 def _msg_class(kind: str):

@@ -89,7 +89,8 @@ PARAMS: tuple[ParamSpec, ...] = (
        "ellipse with the frequency interval; confidence: see sigma_k) [-]",
        lo=0.0, hi=10.0),
     _p("drift_window", float, _D.drift_window,
-       "Span of recent estimates the drift rate of a mode is fitted over [s]", lo=0.1,
+       "Span of recent estimates the drift rate of a mode is fitted over, at least 4 memory "
+       "time constants of the identifier (its estimates are correlated over one) [s]", lo=0.1,
        hi=600.0, unit="s"),
     _p("drift_rate_min", float, _D.drift_rate_min,
        "Drift rate a mode is assumed capable of at least, as a fraction of its frequency per "

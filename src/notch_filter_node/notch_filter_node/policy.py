@@ -106,6 +106,9 @@ HANDOVER_GATE = 0.02
 #: A design looks ahead by this fraction of the time since its estimate arrived (at least
 #: ``design_horizon``), so a long gap is re-designed a few times, not at every block.
 GAP_GROWTH = 0.5
+#: The drift is fitted over at least this many memories of the identifier (its estimates are
+#: correlated over one: a shorter window holds too few independent ones for a slope).
+DRIFT_MEMORIES = 4.0
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,8 @@ class EstimateInput:
     health_reason: str = ""
     received: float = math.nan
     predicted: Sequence[ModeInput] = ()  # modes an LPV model predicts at the estimate's stamp
+    memory: float = math.nan  # [s] identifier's memory time constant (smoothing.estimator_memory)
+    lag: float = 0.0  # [s] how far its estimate of a drifting mode lags the stamp (0 = unknown)
 
 
 @dataclass(frozen=True)
@@ -304,6 +309,7 @@ class RetuningPolicy:
         self.counts: dict[str, int] = {}
         self._fault_since = math.nan
         self._history: dict[int, list[tuple[float, ...]]] = {}  # (t, f, f_std, zeta, zeta_std)
+        self._memory: dict[int, tuple[float, float]] = {}  # mode id: (memory, lag) [s]
         self._params: S.SectionParams | None = None  # returned again while nothing moves
         self._budget_key: tuple = ()
         self._checked = -math.inf  # data time the designs were last checked against the age
@@ -384,6 +390,7 @@ class RetuningPolicy:
         self.estimate = est
         if restart:
             self._history.clear()
+            self._memory.clear()
             if self.good is not None and self.good.stamp > est.stamp:
                 self.good = None
         if est.health == HEALTH_FAULT:
@@ -414,19 +421,30 @@ class RetuningPolicy:
         return ""
 
     def _remember(self, est: EstimateInput) -> None:
-        """Keep the recent estimates of tracked modes (the mode models' window)."""
-        keep = est.stamp - self.config.drift_window
+        """Keep the recent estimates of tracked modes (the mode models' window) and the
+        identifier's memory and lag they came with."""
         for m in est.modes:
             if m.status == "tracked" and math.isfinite(m.frequency_hz):
-                self._history.setdefault(int(m.id), []).append(
+                mid = int(m.id)
+                self._history.setdefault(mid, []).append(
                     (est.stamp, m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
                      m.damping_std))
+                self._memory[mid] = (est.memory, est.lag)
         for mid in list(self._history):
+            keep = est.stamp - self._window(mid)
             h = [p for p in self._history[mid] if p[0] >= keep]
             if h:
                 self._history[mid] = h
             else:
                 del self._history[mid]
+                self._memory.pop(mid, None)
+
+    def _window(self, mid: int) -> float:
+        """Span [s] a mode's model is fitted over: ``drift_window``, at least
+        ``DRIFT_MEMORIES`` memories of the identifier that estimated it."""
+        memory = self._memory.get(mid, (math.nan, 0.0))[0]
+        w = self.config.drift_window
+        return max(w, DRIFT_MEMORIES * memory) if math.isfinite(memory) else w
 
     @staticmethod
     def _prediction(est: EstimateInput) -> EstimateInput | None:
@@ -469,14 +487,16 @@ class RetuningPolicy:
                 self.revision += 1
 
     def mode_model(self, m: ModeInput) -> SM.ModeModel:
-        """The mode's model from its estimates over ``drift_window`` (:mod:`smoothing`); the
-        estimate itself while the window is short."""
+        """The mode's model from its estimates over its window (:meth:`_window`,
+        :mod:`smoothing`, with the identifier's memory and lag); the estimate itself while the
+        window is short."""
         h = self._history.get(int(m.id))
         if not h:
             return SM.ModeModel(m.frequency_hz, m.frequency_std_hz, m.damping_ratio,
                                 m.damping_std)
         t, f, sf, z, sz = (np.array(v, dtype=float) for v in zip(*h, strict=True))
-        return SM.model(t, f, sf, z, sz, self.config.drift_window)
+        memory, lag = self._memory.get(int(m.id), (math.nan, 0.0))
+        return SM.model(t, f, sf, z, sz, self._window(int(m.id)), memory, lag)
 
     def _usable(self, est: EstimateInput) -> dict[int, ModeInput]:
         c = self.config

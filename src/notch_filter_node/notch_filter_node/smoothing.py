@@ -16,6 +16,19 @@ bias in short series). With
   ``1.2533 s / sqrt(n_eff)`` from the scatter ``s`` (1.4826 MAD), again not below the reported
   std over ``sqrt(n_eff)``.
 
+The identifier's memory (``memory``: the time constant tau of its forgetting, with the Hankel
+window's length ``i / fs``; both carried by sysid_msgs/ModalEstimate) says two more things:
+
+- its estimates are correlated over about tau (the integral time of their errors measured on
+  drifting-mode draws: 0.3-0.5 s at tau 0.5 s, 1.1-1.6 s at tau 1 s), so a window of length ``W``
+  holds at most ``1 + W / tau`` independent ones, whatever their lag-1 autocorrelation says
+  (the AR(1) estimate reads low on a short window a line has been fitted through);
+- a drifting mode's estimate lags its stamp by ``lag = tau + i / fs`` (the data's weighted mean
+  age plus half the past-and-future Hankel window; measured 0.65-0.67 s at 0.675 s and 1.17-1.18 s
+  at 1.175 s), so the frequency is extrapolated by ``b lag``, its variance grown by
+  ``(se_b lag)^2``. Without it the estimate of a drift sits several of its stds behind the mode
+  once the memory is long (``benchmarks/notch_width_budget.py``).
+
 With fewer than :data:`MIN_ESTIMATES` estimates, or a window spanning less than a quarter of
 its length, the latest estimate and its reported stds are used as they are, with no drift.
 """
@@ -53,6 +66,18 @@ def _median_finite(x: np.ndarray) -> float:
     return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
 
 
+def estimator_memory(forgetting_factor: float, sample_rate: float,
+                     block_rows: int) -> tuple[float, float]:
+    """(tau, lag) [s] of a recursive identifier from its forgetting factor lambda, rate [Hz] and
+    Hankel block rows i: ``tau = -1 / (fs ln lambda)`` (the memory_time_constant that gives
+    lambda), ``lag = tau + i / fs``; (NaN, 0) when unknown (lambda outside (0, 1), no rate)."""
+    lam, fs = float(forgetting_factor), float(sample_rate)
+    if not (0.0 < lam < 1.0 and math.isfinite(fs) and fs > 0):
+        return math.nan, 0.0
+    tau = -1.0 / (fs * math.log(lam))
+    return tau, tau + max(int(block_rows), 0) / fs
+
+
 def _n_eff(res: np.ndarray) -> float:
     """Independent samples in ``res`` under an AR(1) model of its lag-1 autocorrelation."""
     n = res.size
@@ -64,9 +89,11 @@ def _n_eff(res: np.ndarray) -> float:
 
 
 def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
-          zeta_std: np.ndarray, span: float) -> ModeModel:
+          zeta_std: np.ndarray, span: float, memory: float = math.nan,
+          lag: float = 0.0) -> ModeModel:
     """The mode's model from its estimates over a window of length ``span`` [s] (arrays in time
-    order; NaN stds = unknown). See the module docstring."""
+    order; NaN stds = unknown); ``memory`` [s] and ``lag`` [s]: the identifier's
+    (:func:`estimator_memory`; NaN / 0 = unknown). See the module docstring."""
     t, f = np.asarray(t, dtype=float), np.asarray(f, dtype=float)
     last = ModeModel(float(f[-1]), float(f_std[-1]), float(zeta[-1]), float(zeta_std[-1]))
     if t.size < MIN_ESTIMATES or t[-1] - t[0] < 0.25 * span:
@@ -78,6 +105,8 @@ def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
     slope = float(tc @ (f - f.mean())) / sxx
     res = f - f.mean() - slope * tc
     n, n_eff = t.size, _n_eff(res)
+    if math.isfinite(memory) and memory > 0:  # estimates correlated over the memory
+        n_eff = max(min(n_eff, 1.0 + float(t[-1] - t[0]) / memory), 1.0)
     s2 = float(res @ res) / (n - 2)
     inflate = n / n_eff
     f_now = float(f.mean() + slope * tc[-1])
@@ -86,8 +115,10 @@ def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
     # the residual scatter, or the reported std where larger (a line through correlated
     # estimates absorbs part of their error, so the scatter alone reads low)
     s2 = max(s2, rep_f**2) if math.isfinite(rep_f) else s2
-    se_f = math.sqrt(s2 * lever)
     se_b = math.sqrt(s2 * inflate / sxx)
+    lag = lag if math.isfinite(lag) and lag > 0 else 0.0
+    f_now += slope * lag  # the estimate lags its stamp: where the drift has taken the mode
+    se_f = math.sqrt(s2 * lever + (se_b * lag) ** 2)
     z = np.asarray(zeta, dtype=float)
     z = z[np.isfinite(z)]
     if z.size >= MIN_ESTIMATES:
