@@ -25,6 +25,8 @@ from sysid_node.topics import topic_name_error
 RATE_POLICIES = ("resample", "reject")
 #: Default upper band edge as a fraction of the sample rate (0.4 fs = 80 % of Nyquist).
 NYQUIST_SAFE_FRACTION = 0.4
+#: Smallest explicit forgetting factor (a memory of 10 samples).
+MIN_FORGETTING_FACTOR = 0.9
 #: Automatic block rows aim at this many rows of the stacked window 2 i (m + l).
 AUTO_WINDOW_ROWS = 140
 
@@ -68,14 +70,16 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
        "structural", lo=0, hi=400),
     # -- estimator (live) --
-    _p("forgetting_factor", float, 0.99,
-       "RLS forgetting factor lambda [-] (ignored when memory_time_constant > 0)",
-       lo=0.9, hi=1.0),
-    _p("memory_time_constant", float, 0.0,
-       "Memory of the estimator as a time constant tau [s]; > 0 sets lambda = exp(-1/(tau fs)) "
-       "at the measured rate so behaviour does not change with the sample rate; 0 = use "
-       "forgetting_factor", lo=0.0, hi=3600.0, unit="s"),
-    _p("max_modes", int, 5, "Largest number of modes reported [-]", lo=1, hi=50),
+    _p("forgetting_factor", float, 0.0,
+       "RLS forgetting factor lambda [-]: 0.9 .. 1 sets it directly (memory 1/(1 - lambda) "
+       "samples whatever the rate); 0 = from memory_time_constant", lo=0.0, hi=1.0),
+    _p("memory_time_constant", float, 1.0,
+       "Memory of the estimator as a time constant tau [s] (lambda = exp(-1/(tau fs)) at the "
+       "identification rate, so the memory does not change with the sample rate); used when "
+       "forgetting_factor is 0", lo=0.01, hi=3600.0, unit="s"),
+    _p("max_modes", int, 10,
+       "Largest number of modes reported as tracked (the strongest first) [-]; the model "
+       "order defaults to twice this", lo=1, hi=50),
     _p("freq_min", float, 0.0, "Lower edge of the frequency band of reported modes [Hz]",
        lo=0.0, hi=50000.0, unit="Hz"),
     _p("freq_max", float, 0.0,
@@ -113,8 +117,11 @@ PARAMS: tuple[ParamSpec, ...] = (
     # -- mode tracking gates (live) --
     _p("tracking_frequency_tolerance", float, 0.05,
        "Relative frequency gate for matching a mode to a tracked one [-]", lo=0.001, hi=0.5),
-    _p("tracking_confirm_count", int, 3,
-       "Successive matches before a tentative mode becomes tracked [-]", lo=1, hi=100),
+    _p("tracking_confirm_count", int, 6,
+       "Successive matches before a tentative mode becomes tracked [-] (successive "
+       "realizations share most of their data, so a noise mode recurs for a good part of "
+       "the memory: 6 estimates at publish_rate 10 Hz = 0.6 memory_time_constant)",
+       lo=1, hi=100),
     _p("tracking_lost_timeout", float, 2.0,
        "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
        unit="s"),
@@ -172,6 +179,9 @@ def _check_sysid(name: str, value: Any) -> str:
     """This node's own checks of a value of the right type ('' if valid)."""
     if name == "imu_axes":
         return check_imu_axes(value)
+    if name == "forgetting_factor" and 0.0 < value < MIN_FORGETTING_FACTOR:
+        return (f"forgetting_factor={value:g} is too small: use 0 (memory_time_constant) or "
+                f"{MIN_FORGETTING_FACTOR:g} .. 1")
     if name == "block_rows" and value == 1:
         return "block_rows=1 is too small: use 0 (auto) or at least 2"
     if name == "lpv_model" and value:
@@ -243,14 +253,16 @@ def structural_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
 
 
 def effective_lambda(values: dict[str, Any], fs: float) -> float:
-    """lambda from ``memory_time_constant`` tau (> 0) at rate ``fs``: exp(-1/(tau fs)).
-
-    Otherwise ``forgetting_factor``. The effective memory is about 1/(1-lambda) samples = tau fs.
-    """
-    tau = float(values.get("memory_time_constant", 0.0))
+    """lambda: ``forgetting_factor`` when set (> 0), else from ``memory_time_constant`` tau at
+    the identification rate ``fs``: exp(-1/(tau fs)), a memory of about tau fs samples = tau
+    seconds at any rate. (Before the rate is known: the 100-sample memory of lambda 0.99.)"""
+    lam = float(values.get("forgetting_factor", 0.0))
+    if lam > 0:
+        return lam
+    tau = float(values.get("memory_time_constant", 1.0))
     if tau > 0 and math.isfinite(fs) and fs > 0:
         return math.exp(-1.0 / (tau * fs))
-    return float(values["forgetting_factor"])
+    return 0.99
 
 
 def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int) -> int:
@@ -260,7 +272,7 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int) 
     i = int(values.get("block_rows", 0))
     if i > 0:
         return i
-    order = int(values.get("max_order", 0)) or 2 * int(values.get("max_modes", 5))
+    order = int(values.get("max_order", 0)) or 2 * int(values.get("max_modes", 10))
     need = -(-(order + 2) // max(n_outputs, 1)) + 1
     return max(need, 2, min(35, round(AUTO_WINDOW_ROWS / (2 * (n_inputs + n_outputs)))))
 

@@ -193,7 +193,8 @@ def test_parameters_command_line_file_and_services(data, harness, tmp_path):
         assert got[3].string_value == "SignalBlock"
         desc = harness.call("describe_parameters", DescribeParameters.Request(
             names=["forgetting_factor", "block_rows"])).descriptors
-        assert desc[0].floating_point_range[0].from_value == 0.9 and desc[0].description
+        # forgetting_factor: 0 (the default: memory_time_constant) or 0.9 .. 1 (service check)
+        assert desc[0].floating_point_range[0].to_value == 1.0 and desc[0].description
         assert desc[1].integer_range[0].to_value == 200
 
         n1 = 1000
@@ -206,6 +207,8 @@ def test_parameters_command_line_file_and_services(data, harness, tmp_path):
         assert res.successful, res.reason
         res = harness.set_param("forgetting_factor", 1.5)
         assert not res.successful and "forgetting_factor" in res.reason
+        res = harness.set_param("forgetting_factor", 0.5)
+        assert not res.successful and "too small" in res.reason
         res = harness.set_param("freq_max", 70.0)  # above Nyquist of the measured rate
         assert not res.successful and "Nyquist" in res.reason
         assert harness.get_params(["forgetting_factor"])[0].double_value == 0.995

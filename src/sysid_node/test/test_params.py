@@ -23,7 +23,9 @@ def test_every_parameter_has_description_type_and_valid_default():
     ("name", "value", "fragment"),
     [
         ("forgetting_factor", 1.5, "above the maximum"),
-        ("forgetting_factor", 0.5, "below the minimum"),
+        ("forgetting_factor", 0.5, "too small: use 0 (memory_time_constant)"),
+        ("forgetting_factor", -0.1, "below the minimum"),
+        ("memory_time_constant", 0.0, "below the minimum"),
         ("forgetting_factor", math.nan, "finite"),
         ("block_rows", 1, "too small"),
         ("block_rows", -1, "below the minimum"),
@@ -59,7 +61,10 @@ def test_memory_time_constant_gives_rate_independent_memory():
     for fs in (100.0, 1000.0):
         lam = P.effective_lambda(v, fs)
         assert 1.0 / (1.0 - lam) == pytest.approx(2.0 * fs, rel=0.01)
-    assert P.effective_lambda(P.defaults(), 100.0) == 0.99
+    # the default is a memory of 1 s at any rate; an explicit forgetting factor overrides it
+    for fs in (100.0, 1000.0):
+        assert 1.0 / (1.0 - P.effective_lambda(P.defaults(), fs)) == pytest.approx(fs, rel=0.01)
+    assert P.effective_lambda({**v, "forgetting_factor": 0.98}, 1000.0) == 0.98
 
 
 def test_default_band_is_safe_fraction_of_nyquist():
