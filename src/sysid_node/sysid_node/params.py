@@ -29,6 +29,12 @@ NYQUIST_SAFE_FRACTION = 0.4
 MIN_FORGETTING_FACTOR = 0.9
 #: Automatic block rows aim at this many rows of the stacked window 2 i (m + l).
 AUTO_WINDOW_ROWS = 140
+#: ... and reach up to this many to span half a period of the lowest mode (the automatic band's
+#: lowest peak; the RLS costs the square of the rows per sample, a realization their cube).
+MAX_AUTO_WINDOW_ROWS = 280
+#: Lowest mode assumed while the automatic band is being chosen [Hz]: a window of 0.35 s, the
+#: seed example's 35 block rows at 100 Hz (Sec. II; its lowest mode is at 2 Hz).
+INITIAL_LOW_HZ = 1.0 / 0.7
 
 
 _p = ParamSpec  # _p(name, type, default, description, kind, lo=, hi=, choices=, unit=)
@@ -65,7 +71,9 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("block_rows", int, 0,
        "Hankel block rows i of the recursive DSRA (A1) [-]; 0 = auto: about "
        f"{AUTO_WINDOW_ROWS} rows in the stacked window 2 i (m + l) (35 for 1 input + 1 output, "
-       "10 for 1 + 6), enough for the model order", "structural", lo=0, hi=200),
+       "10 for 1 + 6), enough for the model order, and with the automatic band (freq_max 0) "
+       "enough to span half a period of its lowest peak (0.35 s until the band is chosen; up "
+       f"to {MAX_AUTO_WINDOW_ROWS} rows)", "structural", lo=0, hi=200),
     _p("max_order", int, 0,
        "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
        "structural", lo=0, hi=400),
@@ -265,16 +273,25 @@ def effective_lambda(values: dict[str, Any], fs: float) -> float:
     return 0.99
 
 
-def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int) -> int:
+def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
+                         fs: float = math.nan, low_hz: float = math.nan) -> int:
     """``block_rows`` when > 0; else i with 2 i (m + l) close to AUTO_WINDOW_ROWS (the cost of
-    a realization grows with the cube of that size), at most 35 (the seed example's value) and
-    at least enough block rows for the model order (l (i - 1) >= order + 2)."""
+    a realization grows with the cube of that size), at most 35 (the seed example's value), at
+    least enough block rows for the model order (l (i - 1) >= order + 2), and, when the lowest
+    mode ``low_hz`` [Hz] is known (the automatic band's lowest peak, ``core/band.py``), enough
+    for the Hankel window to span half its period at the identification rate ``fs`` [Hz]
+    (i >= fs / (2 low_hz); up to MAX_AUTO_WINDOW_ROWS rows)."""
     i = int(values.get("block_rows", 0))
     if i > 0:
         return i
     order = int(values.get("max_order", 0)) or 2 * int(values.get("max_modes", 10))
     need = -(-(order + 2) // max(n_outputs, 1)) + 1
-    return max(need, 2, min(35, round(AUTO_WINDOW_ROWS / (2 * (n_inputs + n_outputs)))))
+    width = 2 * (n_inputs + n_outputs)
+    i = max(need, 2, min(35, round(AUTO_WINDOW_ROWS / width)))
+    if math.isfinite(low_hz) and low_hz > 0 and math.isfinite(fs) and fs > 0:
+        span = math.ceil(fs / (2.0 * low_hz) - 1e-9)
+        i = max(i, min(span, MAX_AUTO_WINDOW_ROWS // width))
+    return int(min(i, SPECS["block_rows"].hi))
 
 
 def decimation_factor(values: dict[str, Any], fs: float, auto_edge: float = math.nan) -> int:

@@ -107,6 +107,8 @@ class Pipeline:
         #: automatic band (freq_max 0): its upper edge [Hz] (NaN until chosen) and the recent
         #: raw data for the checks and rebuilds
         self.band_edge = math.nan
+        #: the automatic band's lowest peak [Hz] (NaN until chosen): the block rows span it
+        self.band_low = math.nan
         self.estimator_band_max = math.inf
         self._raw: list[Chunk] = []
         self._next_check_ns: int | None = None
@@ -120,7 +122,11 @@ class Pipeline:
         fs = self.identification_rate
         fmin, fmax = self.band
         self.estimator_band_max = fmax
-        self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs)
+        # while the automatic band is being chosen the lowest mode is unknown: the window of the
+        # seed example (P.INITIAL_LOW_HZ), within the row budget
+        low = (self.band_low if math.isfinite(self.band_edge) or not self.auto_band
+               else P.INITIAL_LOW_HZ)
+        self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs, fs, low)
         top = n_outputs * (self.block_rows - 1)  # largest order the Hankel rows allow
         max_order = min(v["max_order"], top) if v["max_order"] else None
         self.estimator = RecursiveDSRA(
@@ -338,8 +344,13 @@ class Pipeline:
                 self.log("channel layout or time line changed: estimator reset")
             self.estimator = None
             self._raw = []
-            self.band_edge = math.nan
-            self._next_check_ns = None
+            if self._keep_tracks and math.isfinite(self.band_edge):
+                # the same structure: its band and lowest peak hold (rechecked as data come)
+                self._next_check_ns = int(c.stamps_ns[0]) + round(BAND_CHECK_PERIOD_S * 1e9)
+            else:
+                self.band_edge = math.nan
+                self.band_low = math.nan
+                self._next_check_ns = None
         if not self.auto_band:
             return self._feed_estimator(c, realize)
         self._layout = (ny, nu)
@@ -410,13 +421,18 @@ class Pipeline:
         (decimated to match), keeping the tracks."""
         choice = self._band_from_raw()
         self.band_edge = choice.fmax_hz
+        self.band_low = choice.low_hz
         self._next_check_ns = int(self._raw[-1].stamps_ns[-1]) + round(BAND_CHECK_PERIOD_S * 1e9)
         self._widen_votes = 0
         top = f"{choice.top_hz:.4g} Hz" if choice.found else "none"
+        low = f"{choice.low_hz:.4g} Hz" if math.isfinite(choice.low_hz) else "none"
         self.log(f"automatic band 0-{self.band[1]:g} Hz (structure above the noise floor up "
-                 f"to {top})")
+                 f"to {top}, lowest peak {low})")
         factor = P.decimation_factor(self.values, self.sample_rate, self.band_edge)
-        if factor != self.decimator.factor or self.band[1] < self.estimator_band_max:
+        rows = P.effective_block_rows(self.values, *self._layout, self.sample_rate / factor,
+                                      self.band_low)
+        if (factor != self.decimator.factor or self.band[1] < self.estimator_band_max
+                or rows != self.block_rows):
             self._rebuild_from_raw()
 
     def _recheck_band(self, last_ns: int) -> None:

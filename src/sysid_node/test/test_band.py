@@ -124,3 +124,19 @@ def test_configured_band_is_untouched():
     pl, recs, logs = _run(y[:, None], fs, {"freq_max": 50.0})
     assert not any("automatic band" in m for m in logs)
     assert recs[-1].band_max_hz == pytest.approx(50.0)
+
+
+def test_lowest_peak_is_the_lowest_mode_not_a_drift():
+    """The lowest prominent output peak is about the lowest mode (at most two bins below it);
+    a slow drift's rising spectrum below it is no peak, and an input's lines do not count."""
+    rng = np.random.default_rng(5)
+    fs, n = 877.0, 4000
+    t = np.arange(n) / fs
+    y = _resonance(rng, fs, 9.5, 0.01, n) + _resonance(rng, fs, 150.0, 0.02, n, 0.5)
+    drift = 2.0 * np.cumsum(rng.standard_normal(n)) / np.sqrt(n)  # a random walk offset
+    y = y + drift + 0.02 * rng.standard_normal(n)
+    u = np.sin(2 * np.pi * 1.3 * t)
+    ch = structure_band(y[:, None], u[:, None], fs)
+    assert 9.5 - 2.5 * ch.resolution_hz <= ch.low_hz <= 9.5
+    white = structure_band(rng.standard_normal((n, 2)), None, fs)
+    assert np.isnan(white.low_hz)

@@ -137,3 +137,20 @@ def test_online_lpv_parameters_checked_with_one_line_reasons(tmp_path):
     assert "must differ" in P.validate_set({**base, "scheduling_topic": "vibration"})
     assert P.validate_set({**base, "scheduling_topic": "rotor_speed"}) == ""
     assert P.SPECS["lpv_model"].kind == P.SPECS["scheduling_topic"].kind == "read_only"
+
+
+@pytest.mark.parametrize(
+    ("outputs", "inputs", "fs", "low", "rows"),
+    [(2, 1, 877.0, 9.0, 46),  # half of 9 Hz's period at 877 Hz (49 rows), capped: 276 rows
+     (3, 1, 100.0, 1.9, 27),  # 26.3 rows
+     (1, 1, 100.0, 2.0, 35),  # the cost rule already spans it
+     (1, 0, 1000.0, 0.5, 140),  # capped at MAX_AUTO_WINDOW_ROWS rows of the window
+     (6, 1, 1000.0, 0.5, 20),
+     (2, 1, 877.0, float("nan"), 23)],  # no lowest peak known: the cost rule
+)
+def test_auto_block_rows_span_half_a_period_of_the_lowest_peak(outputs, inputs, fs, low, rows):
+    got = P.effective_block_rows(P.defaults(), outputs, inputs, fs, low)
+    assert got == rows
+    assert 2 * got * (outputs + inputs) <= max(P.MAX_AUTO_WINDOW_ROWS, 2 * 35 * (outputs + inputs))
+    assert P.effective_block_rows({**P.defaults(), "block_rows": 12}, outputs, inputs, fs,
+                                  low) == 12  # a configured value is kept

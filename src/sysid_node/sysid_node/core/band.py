@@ -15,7 +15,12 @@ modes. This module finds the band from the data, with no model:
    averaged segments a noise bin reaches half that ratio with a probability far below 1e-6
    per bin);
 3. the band reaches ``EDGE_MARGIN`` above the upper edge of the highest such bin,
-   so that a mode may rise before the band has to widen, and never above ``0.4 fs``.
+   so that a mode may rise before the band has to widen, and never above ``0.4 fs``;
+4. the lowest mode: the lower edge of the lowest bin of an *output* with structure that is also
+   a prominent peak (``LOW_PROMINENCE`` above the lowest ratio within ``PEAK_SPAN`` on both
+   sides: a drift's or a roll-off's rising spectrum is not one). The pipeline gives the Hankel
+   window half of its period (``params.effective_block_rows``): block rows that span a few
+   milliseconds see a mode of a period of hundreds as a slow trend, not as an oscillation.
 
 The test errs on the safe side: anything above the floor that is not a mode (a flat
 accelerometer feed-through, rising sensor noise, an excitation's own peaks) only widens the
@@ -47,17 +52,22 @@ PEAK_SPAN = 0.1
 PEAK_MIN_BINS = 3
 #: Longest Welch segment [samples] (finer resolution than fs/1024 is not needed for the edge).
 MAX_SEGMENT = 1024
+#: The lowest mode's peak stands this factor above the lowest ratio beside it (see _peaks).
+LOW_PROMINENCE = 2.0
 
 
 @dataclass(frozen=True)
 class BandChoice:
     """Result of :func:`structure_band`: ``fmax_hz`` the upper band edge [Hz] (``0.4 fs`` when
     no structure was found or the data are too short), ``top_hz`` the upper edge of the
-    highest bin with structure (NaN if none), ``resolution_hz`` the Welch bin width."""
+    highest bin with structure (NaN if none), ``resolution_hz`` the Welch bin width,
+    ``low_hz`` the lower edge of the lowest prominent output peak with structure (NaN if
+    none): about the lowest mode's frequency."""
 
     fmax_hz: float
     top_hz: float
     resolution_hz: float
+    low_hz: float = math.nan
 
     @property
     def found(self) -> bool:
@@ -77,6 +87,12 @@ def segment_length(n_samples: int) -> int:
 def structure_ratio(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """(f, ratio): bin frequencies [Hz] and, per bin, the largest over the channels of the PSD
     over that channel's noise floor; empty arrays when the data are too short."""
+    f, ratio = _channel_ratios(y, fs)
+    return f, ratio.max(axis=1) if f.size else ratio
+
+
+def _channel_ratios(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """(f, ratio (bins, channels)): each channel's PSD over its own noise floor."""
     y = np.asarray(y, dtype=float)
     y = y.reshape(len(y), -1)
     nseg = segment_length(y.shape[0])
@@ -88,7 +104,7 @@ def structure_ratio(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     ok = floor > 0  # a constant channel has no floor and no structure
     ratio = np.zeros_like(p)
     ratio[:, ok] = p[:, ok] / floor[ok]
-    return f, ratio.max(axis=1)
+    return f, ratio
 
 
 def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
@@ -101,17 +117,22 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     evidence: 2 and 4; the first choice takes every peak above the ratio)."""
     full = MAX_EDGE_FRACTION * fs
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
+    n_out = y.shape[1]
     if u is not None and np.size(u):
         y = np.hstack([y, np.asarray(u, dtype=float).reshape(len(y), -1)])
-    f, ratio = structure_ratio(y, fs)
+    f, ratios = _channel_ratios(y, fs)
     if f.size == 0:
         return BandChoice(full, math.nan, math.nan)
+    ratio = ratios.max(axis=1)
     df = float(f[1] - f[0]) if f.size > 1 else float(f[0])
+    out = ratios[:, :n_out].max(axis=1)
+    low = np.flatnonzero(_peaks(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
+    low_hz = float(max(f[low[0]] - df, df)) if low.size else math.nan  # lower bin edge
     hit = np.flatnonzero(_peaks(ratio, prominence) & (ratio > ratio_factor * STRUCTURE_RATIO))
     if hit.size == 0:
-        return BandChoice(full, math.nan, df)
+        return BandChoice(full, math.nan, df, low_hz)
     top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
-    return BandChoice(min(EDGE_MARGIN * top, full), top, df)
+    return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz)
 
 
 def _peaks(ratio: np.ndarray, prominence: float = 1.0) -> np.ndarray:
