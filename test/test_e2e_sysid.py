@@ -186,7 +186,7 @@ def test_offline_accuracy(paper_bag, offline_records):
 def test_offline_command_line_writes_bag_csv_json(short_bag, tmp_path):
     params = tmp_path / "p.yaml"
     params.write_text("sysid_node:\n  ros__parameters:\n    publish_rate: 2\n"
-                      "    memory_time_constant: 1.0\n")
+                      "    memory_time_constant: 1.0\n    memory_periods: 0.0\n")
     out = tmp_path / "estimates"
     proc = subprocess.run(
         [str(RUN), "sysid_node", "offline", "--bag", str(short_bag), "--output", str(out),

@@ -85,6 +85,10 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Memory of the estimator as a time constant tau [s] (lambda = exp(-1/(tau fs)) at the "
        "identification rate, so the memory does not change with the sample rate); used when "
        "forgetting_factor is 0", lo=0.01, hi=3600.0, unit="s"),
+    _p("memory_periods", float, 5.0,
+       "With the automatic band (freq_max 0), the memory is at least this many periods of its "
+       "lowest peak (a memory of a few periods cannot resolve a lightly damped low mode in "
+       "noise); 0 = memory_time_constant alone", lo=0.0, hi=1000.0),
     _p("max_modes", int, 10,
        "Largest number of modes reported as tracked (the strongest first) [-]; the model "
        "order defaults to twice this", lo=1, hi=50),
@@ -260,7 +264,7 @@ def structural_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     ]
 
 
-def effective_lambda(values: dict[str, Any], fs: float) -> float:
+def effective_lambda(values: dict[str, Any], fs: float, low_hz: float = math.nan) -> float:
     """lambda: ``forgetting_factor`` when set (> 0), else from ``memory_time_constant`` tau at
     the identification rate ``fs``: exp(-1/(tau fs)), a memory of about tau fs samples = tau
     seconds at any rate. (Before the rate is known: the 100-sample memory of lambda 0.99.)"""
@@ -268,6 +272,9 @@ def effective_lambda(values: dict[str, Any], fs: float) -> float:
     if lam > 0:
         return lam
     tau = float(values.get("memory_time_constant", 1.0))
+    periods = float(values.get("memory_periods", 0.0))
+    if periods > 0 and math.isfinite(low_hz) and low_hz > 0:
+        tau = max(tau, periods / low_hz)  # the lowest mode's periods (automatic band)
     if tau > 0 and math.isfinite(fs) and fs > 0:
         return math.exp(-1.0 / (tau * fs))
     return 0.99

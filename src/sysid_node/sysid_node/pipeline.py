@@ -135,7 +135,7 @@ class Pipeline:
             fs=fs,
             block_rows=self.block_rows,
             max_order=max_order,
-            forgetting_factor=P.effective_lambda(v, fs),
+            forgetting_factor=P.effective_lambda(v, fs, self.band_low),
             realization_interval=self._realization_interval(),
             band=(fmin, fmax),
             damping_bounds=(v["damping_min"], v["damping_max"]),
@@ -153,7 +153,7 @@ class Pipeline:
             rate += f" (decimated by {self.decimator.factor} from {self.sample_rate:g} Hz)"
         self.log(
             f"estimator started: {n_outputs} output(s), {kind}, {rate}, block rows "
-            f"{self.block_rows}, lambda {P.effective_lambda(v, fs):.5f}, band "
+            f"{self.block_rows}, lambda {P.effective_lambda(v, fs, self.band_low):.5f}, band "
             f"{fmin:g}-{fmax:g} Hz"
         )
 
@@ -205,7 +205,7 @@ class Pipeline:
     @property
     def forgetting_factor(self) -> float:
         """lambda per identification sample."""
-        return P.effective_lambda(self.values, self.identification_rate)
+        return P.effective_lambda(self.values, self.identification_rate, self.band_low)
 
     @property
     def counters(self) -> dict[str, int]:
@@ -434,6 +434,8 @@ class Pipeline:
         if (factor != self.decimator.factor or self.band[1] < self.estimator_band_max
                 or rows != self.block_rows):
             self._rebuild_from_raw()
+        elif self.estimator is not None and hasattr(self.estimator, "set_forgetting_factor"):
+            self.estimator.set_forgetting_factor(self.forgetting_factor)  # memory_periods
 
     def _recheck_band(self, last_ns: int) -> None:
         """Recheck the band on the recent raw data; widen it (rebuild the estimator from those
@@ -730,8 +732,8 @@ class Pipeline:
             return
         if "spurious_rejection" in changes and hasattr(est, "stabilize"):
             est.stabilize = bool(v["spurious_rejection"])
-        if {"forgetting_factor", "memory_time_constant"} & changes.keys():
-            est.set_forgetting_factor(P.effective_lambda(v, fs))
+        if {"forgetting_factor", "memory_time_constant", "memory_periods"} & changes.keys():
+            est.set_forgetting_factor(P.effective_lambda(v, fs, self.band_low))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
             est.set_band(P.effective_band(v, fs, self.band_edge),
                          (v["damping_min"], v["damping_max"]))

@@ -127,7 +127,8 @@ def test_configured_band_is_untouched():
 
 
 def test_lowest_peak_is_the_lowest_mode_not_a_drift():
-    """The lowest prominent output peak is about the lowest mode (at most two bins below it);
+    """The lowest output bin rising from below is about the lowest mode (its lower edge at most
+    two and a half bins below it, never above);
     a slow drift's rising spectrum below it is no peak, and an input's lines do not count."""
     rng = np.random.default_rng(5)
     fs, n = 877.0, 4000

@@ -15,6 +15,8 @@ from sysid_node.pipeline import Pipeline
 from sysid_node.records import EstimateRecord
 from sysid_node.scenarios.paper import paper_example_data
 
+from sysid_node import params as P
+
 T0 = 1_700_000_000 * 10**9
 FS = 100.0
 
@@ -100,9 +102,11 @@ def test_live_forgetting_factor_keeps_estimate_structural_resets(paper):
     recs = _run(pl, stamps[:800], u[:800], y[:800])
     assert pl.set_parameters({"forgetting_factor": 0.95}) == ""
     recs2 = _run(pl, stamps[800:1000], u[800:1000], y[800:1000])
-    # default: memory_time_constant 1 s at the paper's 100 Hz; an explicit lambda overrides it
+    # default: memory_time_constant 1 s at the paper's 100 Hz, at least memory_periods of the
+    # automatic band's lowest peak; an explicit lambda overrides it
     assert recs2[0].forgetting_factor == 0.95
-    assert recs[-1].forgetting_factor == pytest.approx(math.exp(-1.0 / 100.0))
+    tau = max(1.0, P.defaults()["memory_periods"] / pl.band_low)
+    assert recs[-1].forgetting_factor == pytest.approx(math.exp(-1.0 / (100.0 * tau)))
     assert recs2[0].samples_used > recs[-1].samples_used  # estimate kept
     assert _near(recs2[0], 2.0) and _near(recs2[0], 4.0)
     # rejected: out of range, nothing changed

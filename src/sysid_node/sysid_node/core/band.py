@@ -16,11 +16,14 @@ modes. This module finds the band from the data, with no model:
    per bin);
 3. the band reaches ``EDGE_MARGIN`` above the upper edge of the highest such bin,
    so that a mode may rise before the band has to widen, and never above ``0.4 fs``;
-4. the lowest mode: the lower edge of the lowest bin of an *output* with structure that is also
-   a prominent peak (``LOW_PROMINENCE`` above the lowest ratio within ``PEAK_SPAN`` on both
-   sides: a drift's or a roll-off's rising spectrum is not one). The pipeline gives the Hankel
-   window half of its period (``params.effective_block_rows``): block rows that span a few
-   milliseconds see a mode of a period of hundreds as a slow trend, not as an oscillation.
+4. the lowest mode: the lower edge of the lowest bin of an *output* with structure that rises
+   from below (``LOW_PROMINENCE`` above the lowest ratio within ``PEAK_SPAN`` below it: a
+   drift's spectrum, falling from DC, does not; a mode's peak or its rising flank does - with
+   the coarse bins of 4 s of data, closely spaced low modes need not make peaks of their own);
+   that bin is a flank below the mode or the mode's own bin, so its lower edge is below it. The
+   pipeline gives the Hankel window half of its period (``params.effective_block_rows``: block
+   rows that span a few milliseconds see a mode of a period of hundreds as a slow trend, not
+   as an oscillation) and the memory ``memory_periods`` of them (``params.effective_lambda``).
 
 The test errs on the safe side: anything above the floor that is not a mode (a flat
 accelerometer feed-through, rising sensor noise, an excitation's own peaks) only widens the
@@ -61,7 +64,7 @@ class BandChoice:
     """Result of :func:`structure_band`: ``fmax_hz`` the upper band edge [Hz] (``0.4 fs`` when
     no structure was found or the data are too short), ``top_hz`` the upper edge of the
     highest bin with structure (NaN if none), ``resolution_hz`` the Welch bin width,
-    ``low_hz`` the lower edge of the lowest prominent output peak with structure (NaN if
+    ``low_hz`` the lower edge of the lowest output bin with structure rising from below (NaN if
     none): about the lowest mode's frequency."""
 
     fmax_hz: float
@@ -126,13 +129,26 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     ratio = ratios.max(axis=1)
     df = float(f[1] - f[0]) if f.size > 1 else float(f[0])
     out = ratios[:, :n_out].max(axis=1)
-    low = np.flatnonzero(_peaks(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
-    low_hz = float(max(f[low[0]] - df, df)) if low.size else math.nan  # lower bin edge
+    low = np.flatnonzero(_rising(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
+    low_hz = float(f[low[0]] - 0.5 * df) if low.size else math.nan  # the bin's lower edge
     hit = np.flatnonzero(_peaks(ratio, prominence) & (ratio > ratio_factor * STRUCTURE_RATIO))
     if hit.size == 0:
         return BandChoice(full, math.nan, df, low_hz)
     top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
     return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz)
+
+
+def _rising(ratio: np.ndarray, prominence: float) -> np.ndarray:
+    """Bins standing ``prominence`` above the lowest ratio within ``PEAK_SPAN`` (at least
+    ``PEAK_MIN_BINS`` bins) below them; the first bin has none below."""
+    n = ratio.size
+    k = np.arange(n)
+    j = np.maximum(PEAK_MIN_BINS, np.ceil(PEAK_SPAN * (k + 1))).astype(int)
+    steps = np.arange(1, int(j.max(initial=1)) + 1)
+    below = k[:, None] - steps[None, :]
+    ok = (steps[None, :] <= j[:, None]) & (below >= 0)
+    lo = np.where(ok, ratio[np.clip(below, 0, max(n - 1, 0))], np.inf).min(axis=1)
+    return (k > 0) & (ratio >= prominence * lo)
 
 
 def _peaks(ratio: np.ndarray, prominence: float = 1.0) -> np.ndarray:
