@@ -138,17 +138,25 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz)
 
 
+def _side_min(ratio: np.ndarray, side: int, clip: bool = True) -> np.ndarray:
+    """Per bin, the lowest ratio within ``PEAK_SPAN`` of its frequency (at least
+    ``PEAK_MIN_BINS`` bins) on one side (``side`` -1: below, +1: above); beyond the ends the end
+    bin counts (``clip``) or nothing does (inf)."""
+    n = ratio.size
+    k = np.arange(n)
+    j = np.maximum(PEAK_MIN_BINS, np.ceil(PEAK_SPAN * (k + 1))).astype(int)  # bin k: (k+1) df
+    steps = np.arange(1, int(j.max(initial=1)) + 1)
+    idx = k[:, None] + side * steps[None, :]
+    ok = steps[None, :] <= j[:, None]
+    if not clip:
+        ok &= (idx >= 0) & (idx < n)
+    return np.where(ok, ratio[np.clip(idx, 0, max(n - 1, 0))], np.inf).min(axis=1)
+
+
 def _rising(ratio: np.ndarray, prominence: float) -> np.ndarray:
     """Bins standing ``prominence`` above the lowest ratio within ``PEAK_SPAN`` (at least
     ``PEAK_MIN_BINS`` bins) below them; the first bin has none below."""
-    n = ratio.size
-    k = np.arange(n)
-    j = np.maximum(PEAK_MIN_BINS, np.ceil(PEAK_SPAN * (k + 1))).astype(int)
-    steps = np.arange(1, int(j.max(initial=1)) + 1)
-    below = k[:, None] - steps[None, :]
-    ok = (steps[None, :] <= j[:, None]) & (below >= 0)
-    lo = np.where(ok, ratio[np.clip(below, 0, max(n - 1, 0))], np.inf).min(axis=1)
-    return (k > 0) & (ratio >= prominence * lo)
+    return (np.arange(ratio.size) > 0) & (ratio >= prominence * _side_min(ratio, -1, False))
 
 
 def _peaks(ratio: np.ndarray, prominence: float = 1.0) -> np.ndarray:
@@ -167,11 +175,5 @@ def _peaks(ratio: np.ndarray, prominence: float = 1.0) -> np.ndarray:
     peak = (ratio >= left) & (ratio >= right)
     if prominence <= 1.0:
         return peak
-    k = np.arange(n)
-    j = np.maximum(PEAK_MIN_BINS, np.ceil(PEAK_SPAN * (k + 1))).astype(int)  # bin k: (k+1) df
-    steps = np.arange(1, int(j.max()) + 1)
-    within = steps[None, :] <= j[:, None]
-    lo = np.where(within, ratio[np.clip(k[:, None] - steps[None, :], 0, n - 1)], np.inf)
-    hi = np.where(within, ratio[np.clip(k[:, None] + steps[None, :], 0, n - 1)], np.inf)
-    dip = np.maximum(lo.min(axis=1), hi.min(axis=1))
+    dip = np.maximum(_side_min(ratio, -1), _side_min(ratio, 1))
     return peak & (ratio >= prominence * dip)
