@@ -95,3 +95,48 @@ def test_modal_form_keeps_the_poles():
 def test_scenarios_are_reproducible():
     a, b = make("periodic_disturbance", seed=7), make("periodic_disturbance", seed=7)
     assert np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u)
+
+
+def test_drop_confined_to_a_few_batches_is_seen_by_the_rank_test():
+    """A transient the new model explains (first 5 % of the record) plus a small error it
+    removes everywhere: the batch-mean t-test sees about sqrt(1) batches and misses it; the
+    rank test on short batches sees most batches improve."""
+    rng = np.random.default_rng(21)
+    n = 3200
+    base = rng.standard_normal(n)
+    extra = 0.3 * rng.standard_normal(n)
+    extra[:160] += 4.0 * np.sin(2 * np.pi * 0.05 * np.arange(160))
+    e0, e1 = (base + extra)[:, None], base[:, None]
+    assert rs.compare_errors(e0, e1).p_value > 0.05
+    assert rs.compare_errors(e0, e1, rank_batches=40).p_value < 1e-4
+    assert rs.compare_errors(e1, e0, rank_batches=40).p_value > 0.5  # the other way round
+
+
+def _resonant(rng: np.random.Generator, n: int, r: float, f: float) -> np.ndarray:
+    """A lightly damped resonance's error (AR(2), poles r exp(+-2 pi i f)), started up."""
+    from scipy import signal
+
+    return signal.lfilter([1.0], [1.0, -2 * r * np.cos(2 * np.pi * f), r * r],
+                          rng.standard_normal(n + 500))[500:]
+
+
+def test_rank_test_keeps_its_level_on_long_correlated_errors():
+    """Two equally good models whose errors ring for ~100 samples (a lightly damped mode's
+    free-run error): batches shorter than that would make the rank test fire far above its
+    level; batches of BATCH_TIMES correlation times keep the false-alarm rate near 1 %."""
+    rng = np.random.default_rng(5)
+    alarms = 0
+    draws = 300
+    for _ in range(draws):
+        e0, e1 = (_resonant(rng, 1200, 0.99, 0.05)[:, None] for _ in range(2))
+        alarms += rs.compare_errors(e0, e1, rank_batches=40).p_value < 0.01
+    assert alarms / draws <= 0.04
+
+
+def test_correlation_time_of_white_and_ar1():
+    rng = np.random.default_rng(6)
+    assert rs.correlation_time(rng.standard_normal(5000)) < 1.3
+    from scipy import signal
+
+    ar = signal.lfilter([1.0], [1.0, -0.9], rng.standard_normal(20000))
+    assert 12 < rs.correlation_time(ar) < 26  # (1 + 0.9) / (1 - 0.9) = 19

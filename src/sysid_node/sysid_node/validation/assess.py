@@ -32,6 +32,9 @@ from .split import Split
 P_FAIL = 0.01
 CARRY_OVER = 2.0  # a validation NRMSE over twice the estimation one is a failure to carry over
 OUTLIER_WINDOW_P = 0.01
+#: The drop of a trial is also tested on the ranks of this many batch means (see
+#: residuals.compare_errors: a drop confined to a few batches).
+RANK_BATCHES = 40
 
 
 @dataclass
@@ -340,4 +343,4 @@ def compare_primary(before: Assessment, e1: np.ndarray | None) -> rs.ErrorCompar
     """Drop of the primary error from the ``before`` model's to ``e1`` (same kind)."""
     if e1 is None:
         return rs.ErrorComparison(0.0, 1.0, 0)
-    return rs.compare_errors(before.primary_error, e1, before.y_std)
+    return rs.compare_errors(before.primary_error, e1, before.y_std, rank_batches=RANK_BATCHES)

@@ -44,6 +44,8 @@ FEEDBACK_ERROR_LAGS = 5  # innovation lags of the feedback test
 CLOSED_LOOP_SHARE = 0.1
 NEAR_MODE = 0.05  # a residual peak within 5 % of a model mode is that mode's error
 SHIFT_BAND = 2.0  # the mode-shift test looks an octave below and above a mode
+WINDOW_PERIODS = 4  # a window of the scheduling tests holds 4 periods of its mode ...
+MAX_WINDOWS = 48  # ... and is lengthened when the record holds more windows than this
 
 
 @dataclass
@@ -341,9 +343,22 @@ def missing_mode(ctx: Context, mode_peaks: list) -> Hypothesis:
 
 
 # ------------------------------------------------------------------ parameter_varying
-def _power_dependence(e: np.ndarray, s: np.ndarray, fs: float) -> tuple[float, float]:
-    """F-test of log window power of e on [1, s, s^2]: (p-value, R^2)."""
-    w = max(int(fs / 2), 8)
+def window_length(n: int, fs: float, f0: float) -> int:
+    """Samples per window of the scheduling tests: :data:`WINDOW_PERIODS` periods of the mode
+    at ``f0`` [Hz] (a band power needs a few cycles), longer where the ``n`` samples would
+    hold over :data:`MAX_WINDOWS` of them. In periods, not seconds: a short record of a fast
+    mode still gives a dozen windows along the scheduling signal. (Shorter windows, down to
+    one period, were tried: the gate then fired on 15 % of the suite's clean records, the
+    free-run error's power following a swept or chirped input over time, and so any slow
+    signal.)"""
+    w = max(int(np.ceil(WINDOW_PERIODS * fs / f0)), 8)
+    return max(w, n // MAX_WINDOWS)
+
+
+def _power_dependence(e: np.ndarray, s: np.ndarray, fs: float, f0: float) -> tuple[float, float]:
+    """F-test of log window power of e on [1, s, s^2] (windows of :func:`window_length` for
+    the lowest model mode ``f0``): (p-value, R^2)."""
+    w = window_length(e.size, fs, f0)
     k = e.size // w
     if k < 8:
         return 1.0, 0.0
@@ -378,7 +393,7 @@ def mode_shift_test(
 ) -> tuple[float, float]:
     """Does a mode near f0 move with theta? The error is band-passed below and above f0 (an
     octave each way, not past the geometric mid-point to a neighbouring mode); the log
-    ratio of the two band powers per window (about 4 periods or 0.5 s) is regressed on the
+    ratio of the two band powers per window (:func:`window_length`) is regressed on the
     window mean of theta; t-test of the slope. A mode whose frequency follows theta leaves
     error above f0 at one end of theta's range and below it at the other. Returns (p, R^2)."""
     lo = max(f0 / SHIFT_BAND, np.sqrt(f0 * neighbours[0]), 1e-3 * fs)
@@ -389,7 +404,7 @@ def mode_shift_test(
     sos_hi = signal.butter(2, [f0, hi], "bandpass", fs=fs, output="sos")
     a_lo = signal.sosfiltfilt(sos_lo, e) ** 2
     a_hi = signal.sosfiltfilt(sos_hi, e) ** 2
-    w = int(max(4.0 * fs / f0, fs / 2, 8))
+    w = window_length(e.size, fs, f0)
     k = e.size // w
     if k < 6:
         return 1.0, 0.0
@@ -431,7 +446,8 @@ def parameter_varying(ctx: Context) -> Hypothesis:
     for name, s in ctx.signals.items():
         sv = s[val]
         for c in range(e.shape[1]):
-            tests = [("power", *_power_dependence(e[:, c], sv, fs))]
+            f_low = freqs[0] if freqs else fs / max(e.shape[0], 1)
+            tests = [("power", *_power_dependence(e[:, c], sv, fs, f_low))]
             for f0, z in modes:
                 tests.append((f"shift {f0:.4g} Hz", *mode_shift_test(e[:, c], sv, fs, f0, z)))
             n_tests += len(tests)
