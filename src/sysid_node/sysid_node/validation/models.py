@@ -513,8 +513,8 @@ def _fit_simulation(
         return
     q = measured_spring_force(fm, data)
     j = sp.cubic_input
-    m0, best = m, None
-    for form in ("input", "free"):
+    best = None
+    for m0, form in ((m0, form) for m0 in _spring_starts(fm, m) for form in ("input", "free")):
         a, c, t, x, v, w = _refine_spring(m0, data, u, q, j, rows, phi, form)
         m = _to_basis(m0, a, c, t)
         oe = fit_output_error(LinearDynamics.build(a, c, data.n), data.y, v, rows, phi, w)
@@ -535,6 +535,26 @@ def _fit_simulation(
     _, fm.model, fm.x0, fm.theta, fm.cubic_c, fm.cubic_form = best
     fm._dyn = None
     fm.simulation_fit = True
+
+
+def _spring_starts(fm: FittedModel, m: IdentifiedModel) -> list[IdentifiedModel]:
+    """Starting dynamics of the spring's refinement: the realization with the measured force
+    as an input (``m``) and, when that realization has fewer oscillatory modes than the
+    linear prior (it traded one of the structure's modes for the force's own spectrum), the
+    prior's stable poles too. The refinement keeps the start that fits the estimation samples
+    best."""
+    out = [m]
+    prior = fm.cubic_prior.model if fm.cubic_prior is not None else None
+    if (
+        prior is not None
+        and prior.order == m.order
+        and spectral_radius(prior.A) < 1.0
+        and prior.B.shape[1] + 1 == m.B.shape[1]
+        and len(modes_of(m.A, m.fs)) < len(modes_of(prior.A, prior.fs))
+    ):
+        zb, zd = np.zeros((prior.order, 1)), np.zeros((prior.C.shape[0], 1))
+        out.append(replace(prior, B=np.hstack([prior.B, zb]), D=np.hstack([prior.D, zd])))
+    return out
 
 
 def _refine_spring(m, data, u, q, j, rows, phi, form):
