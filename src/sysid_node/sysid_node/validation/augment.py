@@ -55,6 +55,9 @@ class ModelSpec:
     order_method: str = "gap"
     band: tuple[float, float] | None = None
     extra_order: int = 0
+    #: (frequency [Hz], damping) of each added mode where the evidence gave one: a start of
+    #: the re-fit next to the realization's (see models.fit)
+    mode_hints: list[tuple[float, float]] = field(default_factory=list)
     delay: float = 0.0  # [samples]
     bias: bool = False
     drift: bool = True
@@ -70,11 +73,16 @@ class ModelSpec:
 
     def with_effect(self, effect: str, params: dict) -> ModelSpec:
         """A copy with ``effect`` added, using ``params`` (diagnosed or given by the user)."""
-        s = replace(self, harmonics=list(self.harmonics), added=[*self.added, effect])
+        s = replace(self, harmonics=list(self.harmonics), added=[*self.added, effect],
+                    mode_hints=list(self.mode_hints))
         p = params
         if effect == "missing_mode":
             s.extra_order += 2 * int(p.get("modes", 1))
             s.band = None
+            f = float(p.get("frequency_hz") or np.nan)
+            if np.isfinite(f) and f > 0 and int(p.get("modes", 1)) == 1:
+                z = float(p.get("damping") or np.nan)
+                s.mode_hints.append((f, z if np.isfinite(z) else np.nan))
         elif effect == "periodic_disturbance":
             orders = p.get("harmonics", [1, 2, 3])
             if isinstance(orders, str):

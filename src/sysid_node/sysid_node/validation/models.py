@@ -396,9 +396,62 @@ def fit(
     _fit_core(fm, data, yc, ue, split, order)
     if data.n_inputs and spec.focus == "free_run" and not spec.feedback and not fm.locals:
         _fit_simulation(fm, data, phi, split)
+        alt = _hinted(fm, like, data)
+        if alt is not None:
+            _fit_simulation(alt, data, phi, split)
+            if _estimation_cost(alt, data, split) < _estimation_cost(fm, data, split):
+                return alt
     elif phi is not None:
         _refine_theta(fm, data, phi, yc, ue, split)
     return fm
+
+
+#: Damping of an added mode whose evidence gives none (a coherence peak), and the range a
+#: residual peak's half-power estimate is kept in.
+HINT_DAMPING = 0.02
+HINT_DAMPING_RANGE = (0.002, 0.2)
+
+
+def _hinted(fm: FittedModel, like: FittedModel | None, data: ValidationData):
+    """The missing-mode structure started from the current model's poles plus one pole pair
+    at each evidence frequency (``spec.mode_hints``), for the output-error refinement: a
+    realization of order n + 2 can spend the two states elsewhere (noise, a real pole pair)
+    and never try the mode the residual shows. None when there is nothing to start from."""
+    sp = fm.spec
+    if not sp.mode_hints or not _plain(like) or like.spec.delay != sp.delay:
+        return None
+    m = like.model
+    if m.order + 2 * len(sp.mode_hints) != fm.order or spectral_radius(m.A) >= 1.0:
+        return None
+    a, c = m.A, m.C
+    for f, z in sp.mode_hints:
+        z = HINT_DAMPING if not np.isfinite(z) else float(np.clip(z, *HINT_DAMPING_RANGE))
+        w = 2 * np.pi * min(f, 0.45 * data.fs)
+        p = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / data.fs)
+        blk = np.array([[p.real, p.imag], [-p.imag, p.real]])
+        a = np.block([[a, np.zeros((a.shape[0], 2))], [np.zeros((2, a.shape[0])), blk]])
+        scale = np.maximum(np.std(data.y, axis=0), 1e-12)[:, None]
+        c = np.hstack([c, scale * np.array([[1.0, 0.0]])])
+    n, k = a.shape[0], m.order
+    q = np.zeros((n, n))
+    q[:k, :k] = m.Q
+    q[k:, k:] = np.eye(n - k) * max(float(np.trace(m.Q)) / max(k, 1), 1e-12)
+    s_ = np.vstack([m.S, np.zeros((n - k, m.S.shape[1]))])
+    b = np.vstack([m.B, np.zeros((n - k, m.B.shape[1]))])
+    alt = FittedModel(sp, fm.order, n_outputs=fm.n_outputs)
+    alt.theta = None if fm.theta is None else fm.theta.copy()
+    alt.model = _to_basis(replace(m, A=a, C=c, B=b, Q=q, S=s_, order=n), a, c, np.eye(n))
+    return alt
+
+
+def _estimation_cost(fm: FittedModel, data: ValidationData, split: Split) -> float:
+    """Mean square free-run error on the estimation samples, channels scaled by their
+    variance (inf when the free run is unbounded)."""
+    ys = fm.simulate(data)
+    if ys is None:
+        return np.inf
+    e = (data.y - ys)[split.est] / np.maximum(np.std(data.y[split.est], axis=0), 1e-300)
+    return float(np.mean(e**2)) if np.all(np.isfinite(e)) else np.inf
 
 
 def _fit_core(
