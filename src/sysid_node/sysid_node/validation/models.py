@@ -16,6 +16,7 @@ reports them.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -424,14 +425,14 @@ def _hinted(fm: FittedModel, like: FittedModel | None, data: ValidationData):
     if m.order + 2 * len(sp.mode_hints) != fm.order or spectral_radius(m.A) >= 1.0:
         return None
     a, c = m.A, m.C
+    shape = np.maximum(np.std(data.y, axis=0), 1e-12)[:, None] * np.array([[1.0, 0.0]])
     for f, z in sp.mode_hints:
         z = HINT_DAMPING if not np.isfinite(z) else float(np.clip(z, *HINT_DAMPING_RANGE))
         w = 2 * np.pi * min(f, 0.45 * data.fs)
         p = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / data.fs)
         blk = np.array([[p.real, p.imag], [-p.imag, p.real]])
         a = np.block([[a, np.zeros((a.shape[0], 2))], [np.zeros((2, a.shape[0])), blk]])
-        scale = np.maximum(np.std(data.y, axis=0), 1e-12)[:, None]
-        c = np.hstack([c, scale * np.array([[1.0, 0.0]])])
+        c = np.hstack([c, shape])
     n, k = a.shape[0], m.order
     q = np.zeros((n, n))
     q[:k, :k] = m.Q
@@ -567,7 +568,7 @@ def _fit_simulation(
     q = measured_spring_force(fm, data)
     j = sp.cubic_input
     best = None
-    for m0, form in ((m0, form) for m0 in _spring_starts(fm, m) for form in ("input", "free")):
+    for m0, form in itertools.product(_spring_starts(fm, m), ("input", "free")):
         a, c, t, x, v, w = _refine_spring(m0, data, u, q, j, rows, phi, form)
         m = _to_basis(m0, a, c, t)
         oe = fit_output_error(LinearDynamics.build(a, c, data.n), data.y, v, rows, phi, w)
