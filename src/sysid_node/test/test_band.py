@@ -56,6 +56,20 @@ def test_multisine_input_lines_widen_the_band():
     assert structure_band(y[:, None], u[:, None], fs).fmax_hz > 60.0
 
 
+def test_broadband_input_does_not_hold_the_band_open():
+    """A band-limited broadband input (2-150 Hz noise at 500 Hz) stands far above its own 5 %
+    quantile (its stop bands) over its whole pass band, but has no lines: the band follows the
+    response's structure (a 5 Hz mode), as without the input."""
+    rng = np.random.default_rng(4)
+    fs, n = 500.0, 4000
+    sos = signal.butter(4, [2.0, 150.0], "bandpass", fs=fs, output="sos")
+    u = signal.sosfilt(sos, rng.standard_normal(n))
+    y = _resonance(rng, fs, 5.0, 0.01, n) + 0.02 * rng.standard_normal(n)
+    alone = structure_band(y[:, None], None, fs).fmax_hz
+    assert alone < 40.0
+    assert structure_band(y[:, None], u[:, None], fs).fmax_hz == pytest.approx(alone)
+
+
 def test_drawn_scenarios_keep_their_true_modes():
     """The randomized suite's records (100-1000 Hz, 1-8 modes anywhere below 0.4 fs, 1-3
     outputs, with and without an input): the band chosen from the first 4 s (as the pipeline

@@ -11,9 +11,10 @@ modes. This module finds the band from the data, with no model:
    quantile of its PSD over the bins in ``(0, fs/2]`` (a measurement noise floor is the lowest
    level of a spectrum; structure only adds to it);
 2. a bin has *structure* when it is a peak (not below its neighbours) of the largest ratio
-   over the channels and exceeds ``STRUCTURE_RATIO`` times the floor (with at least ``MIN_SEGMENTS``
+   over the outputs and exceeds ``STRUCTURE_RATIO`` times the floor (with at least ``MIN_SEGMENTS``
    averaged segments a noise bin reaches half that ratio with a probability far below 1e-6
-   per bin);
+   per bin), or a line of a measured input (``INPUT_LINE`` above its surroundings: a
+   broadband input's level says where it excites, not where the structure is);
 3. the band reaches ``EDGE_MARGIN`` above the upper edge of the highest such bin,
    so that a mode may rise before the band has to widen, and never above ``0.4 fs``;
 4. the lowest mode: the lower edge of the lowest bin of an *output* with structure that rises
@@ -57,6 +58,12 @@ PEAK_MIN_BINS = 3
 MAX_SEGMENT = 1024
 #: The lowest mode's peak stands this factor above the lowest ratio beside it (see _peaks).
 LOW_PROMINENCE = 2.0
+#: A measured input counts where it has lines standing this factor above the lowest ratio
+#: within PEAK_SPAN on both sides (a multisine's, a narrow-band excitation's): a broadband input
+#: (white, coloured, swept) is above its own 5 % quantile almost everywhere below its cut-off
+#: and would hold the band at 0.4 fs whatever the response shows (a Welch bin of >= 7 segments
+#: reaches 8 x its neighbours' minimum by chance far below 1e-6).
+INPUT_LINE = 8.0
 
 
 @dataclass(frozen=True)
@@ -113,8 +120,9 @@ def _channel_ratios(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
 def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
                    prominence: float = 1.0, ratio_factor: float = 1.0) -> BandChoice:
     """The band ``[0, fmax]`` for the outputs ``y`` (N, l) and the inputs ``u`` (N, m) or None
-    sampled at ``fs`` [Hz]. A measured input counts as a channel too: a multisine's lines (or
-    any input structure) are where the response is excited, so the band reaches above them.
+    sampled at ``fs`` [Hz]. A measured input's lines count too (:data:`INPUT_LINE`): a
+    multisine's lines are where the response is excited, so the band reaches above them; its
+    broadband level does not (the response shows where a broadband input excites structure).
     ``prominence``: see :func:`_peaks`; ``ratio_factor`` multiplies ``STRUCTURE_RATIO`` (the
     pipeline's rechecks, which may widen the band and rebuild the estimator, ask for clear
     evidence: 2 and 4; the first choice takes every peak above the ratio)."""
@@ -126,12 +134,16 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     f, ratios = _channel_ratios(y, fs)
     if f.size == 0:
         return BandChoice(full, math.nan, math.nan)
-    ratio = ratios.max(axis=1)
     df = float(f[1] - f[0]) if f.size > 1 else float(f[0])
     out = ratios[:, :n_out].max(axis=1)
     low = np.flatnonzero(_rising(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
     low_hz = float(f[low[0]] - 0.5 * df) if low.size else math.nan  # the bin's lower edge
-    hit = np.flatnonzero(_peaks(ratio, prominence) & (ratio > ratio_factor * STRUCTURE_RATIO))
+    level = ratio_factor * STRUCTURE_RATIO
+    hit = _peaks(out, prominence) & (out > level)
+    if ratios.shape[1] > n_out:  # an input's lines, not its broadband level (see INPUT_LINE)
+        inp = ratios[:, n_out:].max(axis=1)
+        hit |= _peaks(inp, max(prominence, INPUT_LINE)) & (inp > level)
+    hit = np.flatnonzero(hit)
     if hit.size == 0:
         return BandChoice(full, math.nan, df, low_hz)
     top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
