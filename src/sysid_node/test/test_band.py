@@ -155,3 +155,31 @@ def test_lowest_peak_is_the_lowest_mode_not_a_drift():
     assert 9.5 - 2.5 * ch.resolution_hz <= ch.low_hz <= 9.5
     white = structure_band(rng.standard_normal((n, 2)), None, fs)
     assert np.isnan(white.low_hz)
+
+
+def test_lowest_mode_in_the_first_coarse_bins_is_found_on_a_finer_grid():
+    """A 2.2 Hz mode at 433 Hz sits in the first 1.7 Hz Welch bin of 4 s of data, which has no
+    bins below it for the rising test; the fine spectrum (3 segments) finds it, also under a
+    displacement sensor's quasi-static plateau and a drift. Without the fine look the lowest
+    rise is the next mode's (40 Hz) and the Hankel window spans a few ms of a 450 ms period."""
+    rng = np.random.default_rng(11)
+    fs, n = 433.0, int(4 * 433)
+    y = _resonance(rng, fs, 2.2, 0.01, n) + _resonance(rng, fs, 40.0, 0.02, n, 0.5)
+    y = y + 0.5 * np.cumsum(rng.standard_normal(n)) / np.sqrt(n) + 0.03 * rng.standard_normal(n)
+    ch = structure_band(y[:, None], None, fs)
+    assert 1.0 <= ch.low_hz <= 2.2, ch
+
+
+def test_drawn_scenarios_find_their_lowest_mode():
+    """The randomized suite's records (first 4 s, as the pipeline): the lowest output rise is at
+    or below the lowest true mode (+2 %) in all but a few draws (measured: 2 of these 100,
+    5 of 300 with seeds up to 1299, 32 of 300 before the fine look)."""
+    missed = []
+    for seed in range(1000, 1100):
+        scn = draw_modal_scenario(np.random.default_rng(seed), duration_s=6.0, change=None)
+        n = int(max(4.0 * scn.fs, 512))
+        ch = structure_band(scn.y[:n], None if scn.u is None else scn.u[:n], scn.fs)
+        f0 = float(np.min(scn.structure.frequencies_hz))
+        if not ch.low_hz <= 1.02 * f0:
+            missed.append((seed, round(f0, 2), round(ch.low_hz, 2)))
+    assert len(missed) <= 3, missed

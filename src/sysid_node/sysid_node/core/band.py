@@ -21,7 +21,10 @@ modes. This module finds the band from the data, with no model:
    from below (``LOW_PROMINENCE`` above the lowest ratio within ``PEAK_SPAN`` below it: a
    drift's spectrum, falling from DC, does not; a mode's peak or its rising flank does - with
    the coarse bins of 4 s of data, closely spaced low modes need not make peaks of their own);
-   that bin is a flank below the mode or the mode's own bin, so its lower edge is below it. The
+   that bin is a flank below the mode or the mode's own bin, so its lower edge is below it.
+   The first bins have no bins below them: when they hold structure (a 2 Hz mode at 400 Hz
+   is in the first 1.7 Hz bin of 4 s of data), the test runs again below them on a spectrum of
+   ``FINE_SEGMENTS`` segments with ``FINE_PROMINENCE`` (:func:`_fine_low`). The
    pipeline gives the Hankel window half of its period (``params.effective_block_rows``: block
    rows that span a few milliseconds see a mode of a period of hundreds as a slow trend, not
    as an oscillation) and the memory ``memory_periods`` of them (``params.effective_lambda``).
@@ -64,6 +67,11 @@ LOW_PROMINENCE = 2.0
 #: and would hold the band at 0.4 fs whatever the response shows (a Welch bin of >= 7 segments
 #: reaches 8 x its neighbours' minimum by chance far below 1e-6).
 INPUT_LINE = 8.0
+#: Fewest segments of the fine spectrum that looks below the coarse bins for the lowest mode.
+FINE_SEGMENTS = 3
+#: Prominence of the lowest mode's rise in the fine spectrum (few averages: a noise bin stands
+#: 16 x above the lowest of the bins below it with a probability of a few per mille).
+FINE_PROMINENCE = 16.0
 
 
 @dataclass(frozen=True)
@@ -138,6 +146,11 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     out = ratios[:, :n_out].max(axis=1)
     low = np.flatnonzero(_rising(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
     low_hz = float(f[low[0]] - 0.5 * df) if low.size else math.nan  # the bin's lower edge
+    if np.any(out[:PEAK_MIN_BINS] > ratio_factor * STRUCTURE_RATIO):
+        fine = _fine_low(y[:, :n_out], fs, f[PEAK_MIN_BINS - 1] + 0.5 * df,
+                         ratio_factor * STRUCTURE_RATIO)
+        if math.isfinite(fine) and not fine >= low_hz:
+            low_hz = fine
     level = ratio_factor * STRUCTURE_RATIO
     hit = _peaks(out, prominence) & (out > level)
     if ratios.shape[1] > n_out:  # an input's lines, not its broadband level (see INPUT_LINE)
@@ -148,6 +161,24 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
         return BandChoice(full, math.nan, df, low_hz)
     top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
     return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz)
+
+
+def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float) -> float:
+    """The lowest mode when the coarse spectrum has structure in its first bins, which have too
+    few bins below them for the rising test (a 2 Hz mode at 1.7 Hz bins sits in the first):
+    the same test on a spectrum of ``FINE_SEGMENTS`` segments (4-8 x finer bins), below
+    ``below_hz``, with ``FINE_PROMINENCE`` for its few averages. Lower edge of the bin [Hz], NaN
+    if none."""
+    n = y.shape[0]
+    nseg = 2 * n // (FINE_SEGMENTS + 1)
+    if nseg < 16:
+        return math.nan
+    f, p = signal.welch(y, fs=fs, nperseg=nseg, axis=0, detrend="constant")
+    f, p = f[1:], p[1:]
+    floor = np.quantile(p, FLOOR_QUANTILE, axis=0)
+    ratio = (p[:, floor > 0] / floor[floor > 0]).max(axis=1, initial=0.0)
+    hit = np.flatnonzero(_rising(ratio, FINE_PROMINENCE) & (ratio > level) & (f < below_hz))
+    return float(f[hit[0]] - 0.5 * (f[1] - f[0])) if hit.size else math.nan
 
 
 def _side_min(ratio: np.ndarray, side: int, clip: bool = True) -> np.ndarray:
