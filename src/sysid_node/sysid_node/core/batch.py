@@ -14,6 +14,7 @@ from .realization import Projection, ShiftBasis, kalman_gain, project, realize, 
 from .spurious import (
     check_orders,
     flag_spurious,
+    input_own,
     noise_peak_threshold,
     overfit_threshold,
     pole_frequencies,
@@ -104,13 +105,16 @@ def model_from_projection(
     riccati: bool = True,
     check: list[int] | None = None,
     frequency_gate: float | None = 0.05,
+    recent_input_cov: np.ndarray | None = None,
 ) -> IdentifiedModel:
     """Realize order ``order`` from a projection of scaled data and undo the channel scaling.
 
     ``riccati`` selects the Kalman gain from the Riccati equation (else K = S R^{-1}, cheaper).
     ``check``: model orders whose poles flag the spurious modes (``spurious.py``, with the
     tracking ``frequency_gate``, None: no determined-frequency test); the stable modes then
-    come first when ``max_modes`` cuts.
+    come first when ``max_modes`` cuts. ``recent_input_cov``: the covariance of the recent
+    windows' inputs, for the test that a pole pair is not the input's own
+    (:func:`~sysid_node.core.spurious.input_own`; None: not run).
     """
     check = [c for c in (check or []) if 1 <= c <= max_order(proj) and c != order]
     basis = ShiftBasis(proj, max([order, *check]))
@@ -144,6 +148,8 @@ def model_from_projection(
             frequency_gate,
             noise_peak_threshold(width, n_eff / fs),
             overfit_threshold(lay.n_past + lay.i * lay.m, lay.l, n_eff),
+            None if recent_input_cov is None else input_own(
+                recent_input_cov, lay.m, np.array([md.frequency_hz for md in modes]), fs),
         )
     modes = select_modes(modes, None, None, max_modes)
     return IdentifiedModel(

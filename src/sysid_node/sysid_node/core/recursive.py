@@ -34,7 +34,7 @@ from .modal import ModalParameters, select_modes
 from .model import IdentifiedModel
 from .order import select_order
 from .realization import project
-from .spurious import check_orders
+from .spurious import INPUT_RECENT_WINDOWS, check_orders
 
 #: The configuration validated on the paper's Sec. II example (100 Hz, 1 input, 1 output; see
 #: test_core_seed_example.py): i = 35 block rows (0.35 s of past), order 10 (at most five modes in
@@ -91,9 +91,11 @@ class RecursiveDSRA:
 
     Outlier gate (``outlier_gate``, issue #13): see :meth:`_gate`; :meth:`status` reports the
     estimator's health. ``stabilize`` runs the multi-order spurious-mode tests of ``spurious.py``
-    on every realization (``ModalParameters.stable``; off by default: on the paper's example
-    it delays the confirmation of a newly appeared mode beyond 1.5 s), without the batch's
-    determined-frequency test (the tracker judges consistency over successive realizations).
+    on every realization (``ModalParameters.stable``; with a measured input also test 5, the
+    input's own, from a short-memory covariance of the windows' inputs; off by default: on
+    the paper's example it delays the confirmation of a newly appeared mode beyond 1.5 s),
+    without the batch's determined-frequency test (the tracker judges consistency over
+    successive realizations).
     """
 
     #: Largest number of samples queued before they are absorbed (see :meth:`update`).
@@ -193,6 +195,10 @@ class RecursiveDSRA:
         """Forget all data and the model (configuration is kept)."""
         d = self.layout.dim
         self._info = self.delta * np.eye(d)  # weighted information matrix R_k
+        # covariance of the recent windows' inputs [u_p; u_f] (spurious.py test 5)
+        lay = self.layout
+        self._u_cols = np.r_[0 : lay.i * lay.m, lay.n_past : lay.n_past + lay.i * lay.m]
+        self._u_recent = np.zeros((self._u_cols.size, self._u_cols.size))
         self._sum_w = 0.0
         self._sum_w2 = 0.0
         self._k = 0  # number of windows absorbed
@@ -581,6 +587,11 @@ class RecursiveDSRA:
             info *= decay
             np.einsum("ii->i", info)[...] += self.delta * (1.0 - decay)
         info += (z * w[:, None]).T @ z
+        if self._u_cols.size and self.stabilize:  # their inputs over a short memory (test 5)
+            lam_u = min(lam_f, 1.0 - 1.0 / (INPUT_RECENT_WINDOWS * 2 * self.layout.i))
+            zu = z[:, self._u_cols]
+            self._u_recent *= lam_u**n
+            self._u_recent += (zu * (lam_u ** np.arange(n - 1, -1, -1.0))[:, None]).T @ zu
         self._sum_w = decay * self._sum_w + float(w.sum())
         self._sum_w2 = decay**2 * self._sum_w2 + float(w @ w)
         self._k += n
@@ -637,6 +648,7 @@ class RecursiveDSRA:
                 riccati=False,
                 check=check_orders(n, lay.l * (lay.i - 1)) if self.stabilize else None,
                 frequency_gate=None,
+                recent_input_cov=self._u_recent if self._u_cols.size else None,
             )
         except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
             self.realizations_skipped += 1

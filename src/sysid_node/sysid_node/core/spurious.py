@@ -36,6 +36,21 @@ A pole pair is kept as a *stable* (physical) mode when all of these hold:
    seconds while the noise modes it was meant for are caught by tests 1-3 (the paper example
    had no false tracked mode without it).
 
+5. **Not the input's own** (recursive, with a measured input): where the recent input is
+   narrow-band (a sweep's current stretch, a sine dwell), the future inputs are predicted by
+   the past ones, the input is not persistently exciting of order 2i there, and the oblique
+   projection (A2) splits the output between the past data and the future inputs
+   arbitrarily: the state then carries the input's own oscillation (random suite: tracked
+   "modes" that follow a swept input through the band). The recent input's spectrum is the
+   Hann-tapered Bartlett spectrum of its 2i window samples (the realization's resolution)
+   over an exponential memory of ``INPUT_RECENT_WINDOWS`` windows, over its mean
+   (:func:`input_concentration`: 1 for white noise); a pole pair where it stands at least
+   ``INPUT_OWN_LEVEL`` and ``INPUT_OWN_PROMINENCE`` times above its lowest value within
+   ``PEAK_SPAN`` (two bins at least) on both sides is not a mode *of this realization*
+   (:func:`input_own`). A red or band-pass input has no such peak (its low end falls from DC,
+   its pass band is flat). A structural mode the sweep is passing through is rejected for that
+   passage only: it is identified again once the sweep has moved on.
+
 Consistency over successive realizations, shape consistency (MAC) and the ranking by
 contribution are the tracker's part (``tracking.py``).
 """
@@ -60,6 +75,14 @@ NOISE_PEAK_ALPHA = 0.01
 CHECK_ORDER_STEPS = (-4, 4, 8)
 #: Check orders in which a stable mode may be missing.
 STABLE_MISSES = 1
+#: Test 5: input concentration (Bartlett spectrum over its mean: 1 for white noise, about i
+#: for a sinusoid over 2i samples) from which a pole pair may be the input's own ...
+INPUT_OWN_LEVEL = 3.0
+#: ... over the recent windows: an exponential memory of this many window lengths 2i ...
+INPUT_RECENT_WINDOWS = 2
+#: ... when it stands this factor above its lowest value within PEAK_SPAN on both sides.
+INPUT_OWN_PROMINENCE = 2.0
+PEAK_SPAN = 0.1
 
 
 def check_orders(order: int, top: int) -> list[int]:
@@ -84,6 +107,49 @@ def pole_frequencies(poles: np.ndarray, fs: float) -> np.ndarray:
     return f[np.isfinite(f)]
 
 
+def input_concentration(cov: np.ndarray, n_inputs: int, freqs_hz: np.ndarray,
+                        fs: float) -> np.ndarray:
+    """Per frequency [Hz]: the largest over the inputs of e' M e / tr M, M the covariance of an
+    input's 2i successive samples (``cov``: the (2 i m, 2 i m) covariance of the recent
+    windows' inputs [u_p; u_f], sample-major, input c at rows c, c + m, ...) and e the unit
+    phasor at that frequency over them: the Bartlett spectrum over its mean, about 1 for a
+    white or flat multisine input, up to about i for a sinusoid. Zeros without inputs."""
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    m = int(n_inputs)
+    if m == 0 or f.size == 0 or cov is None or cov.size == 0:
+        return np.zeros(f.size)
+    n = cov.shape[0] // m
+    taper = np.hanning(n + 2)[1:-1]  # leakage of a strong low-frequency input stays local
+    taper /= np.sqrt(np.mean(taper**2))
+    e = taper * np.exp(-2j * np.pi * np.outer(f, np.arange(n)) / fs)  # (k, 2 i)
+    q = np.zeros(f.size)
+    for c in range(m):
+        mc = cov[c::m, c::m]
+        tr = float(np.trace(mc))
+        if tr > 0:
+            q = np.maximum(q, np.sum((e.conj() @ mc) * e, axis=1).real / tr)
+    return q
+
+
+def input_own(cov: np.ndarray, n_inputs: int, freqs_hz: np.ndarray, fs: float) -> np.ndarray:
+    """Per frequency [Hz]: is it in a *peak* of the recent input's spectrum (test 5)? The
+    concentration there (:func:`input_concentration`) is at least ``INPUT_OWN_LEVEL`` and at
+    least ``INPUT_OWN_PROMINENCE`` times its lowest value within ``PEAK_SPAN`` (at least two
+    Bartlett bins fs / 2i) below and above: a sweep's current stretch or a sine dwell, not the
+    low end of a red (falling) input spectrum nor a flat band-pass one."""
+    f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
+    if f.size == 0 or int(n_inputs) == 0 or cov is None or cov.size == 0:
+        return np.zeros(f.size, bool)
+    half = max(cov.shape[0] // int(n_inputs), 1)  # 2 i
+    span = np.maximum(PEAK_SPAN * f, 2.0 * fs / half)
+    steps = np.arange(1, 5) / 4.0
+    grid = np.concatenate([np.maximum(f[:, None] - span[:, None] * steps, 0.0), f[:, None],
+                           f[:, None] + span[:, None] * steps], axis=1)  # (k, 9), DC at most
+    q = input_concentration(cov, n_inputs, grid.ravel(), fs).reshape(grid.shape)
+    at, below, above = q[:, 4], q[:, :4].min(axis=1), q[:, 5:].min(axis=1)
+    return (at >= INPUT_OWN_LEVEL) & (at >= INPUT_OWN_PROMINENCE * np.maximum(below, above))
+
+
 def overfit_threshold(regressors: int, n_outputs: int, n_eff: float) -> float:
     """Contribution (variance over innovation variance, summed over the outputs) that noise
     fitted by ``regressors`` least-squares regressors per output reaches with probability
@@ -106,13 +172,15 @@ def flag_spurious(
     frequency_gate: float | None = 0.05,
     snr_threshold: float = 1.0,
     contribution_threshold: float = 0.0,
+    input_own: np.ndarray | None = None,
 ) -> None:
     """Set ``stable`` and ``stable_orders`` of each mode (in place) from the tests above;
     ``check_frequencies`` holds the pole frequencies [Hz] of each check order,
     ``snr_threshold`` the noise-peak level (:func:`noise_peak_threshold`),
     ``contribution_threshold`` the overfit level (:func:`overfit_threshold`);
-    ``frequency_gate`` None skips test 4."""
-    for md in modes:
+    ``frequency_gate`` None skips test 4; ``input_own`` per mode: in a peak of the recent
+    input's spectrum (:func:`input_own`; None skips test 5)."""
+    for k, md in enumerate(modes):
         f = md.frequency_hz
         hits = sum(
             bool(fc.size and np.min(np.abs(fc - f)) <= STABLE_FREQUENCY_TOL * f)
@@ -127,4 +195,5 @@ def flag_spurious(
         determined = (frequency_gate is None or not math.isfinite(rel_std)
                       or Z_99 * rel_std <= frequency_gate)
         need = max(len(check_frequencies) - STABLE_MISSES, min(len(check_frequencies), 1))
-        md.stable = hits >= need and above_floor and determined
+        own = input_own is not None and bool(input_own[k])
+        md.stable = hits >= need and above_floor and determined and not own
