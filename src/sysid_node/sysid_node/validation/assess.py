@@ -171,20 +171,6 @@ def _round(v: float, nd: int) -> float | None:
     return round(float(v), nd) if np.isfinite(v) else None
 
 
-def integrated_time(e: np.ndarray, max_lag: int | None = None) -> float:
-    """Integrated autocorrelation time 1 + 2 sum rho_k [samples], summed up to the first lag
-    where rho turns negative (Geyer's initial positive sequence, simplified)."""
-    e = np.asarray(e, float).ravel()
-    n = e.size
-    if n < 4 or np.std(e) == 0:
-        return 1.0
-    lag = min(max_lag or n // 4, n - 1)
-    r = rs._xcorr_fft(e, e, lag)[lag + 1 :]
-    neg = np.flatnonzero(r <= 0)
-    r = r[: neg[0]] if neg.size else r
-    return float(max(1.0, 1.0 + 2.0 * np.sum(r)))
-
-
 def _failure_test(
     pe: np.ndarray, pe_est: np.ndarray, y_val: np.ndarray, y_est: np.ndarray
 ) -> tuple[np.ndarray, float]:
@@ -197,8 +183,8 @@ def _failure_test(
     ratio = rel_val / np.maximum(rel_est, 1e-300)
     ps = []
     for c in range(pe.shape[1]):
-        d1 = max(pe.shape[0] / integrated_time(pe[:, c]), 1.0)
-        d2 = max(pe_est.shape[0] / integrated_time(pe_est[:, c]), 1.0)
+        d1 = max(pe.shape[0] / rs.correlation_time(pe[:, c], "positive"), 1.0)
+        d2 = max(pe_est.shape[0] / rs.correlation_time(pe_est[:, c], "positive"), 1.0)
         ps.append(float(stats.f.sf(ratio[c], d1, d2)) if np.isfinite(ratio[c]) else 0.0)
     return ratio, float(min(1.0, min(ps) * len(ps)))
 
@@ -214,7 +200,7 @@ def _where(data: ValidationData, e: np.ndarray, split: Split, fit: np.ndarray) -
     ec = e[:, c]
     fs = data.fs
     # time: windows whose mean square exceeds the chi-square 99 % bound of the overall one
-    tau = integrated_time(ec, max_lag=min(ec.size // 4, int(10 * fs)))
+    tau = rs.correlation_time(ec, "positive", max_lag=min(ec.size // 4, int(10 * fs)))
     w = max(int(round(ec.size / 20)), 1)
     k = ec.size // w
     ms = np.mean(ec[: k * w].reshape(k, w) ** 2, axis=1)

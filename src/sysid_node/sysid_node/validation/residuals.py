@@ -429,19 +429,23 @@ def compare_errors(
     return ErrorComparison(drop, p, b)
 
 
-def correlation_time(x: np.ndarray) -> float:
-    """Integrated autocorrelation time [samples] of x: 1 + 2 sum of its autocorrelation up to
-    the first lag M >= 5 times the running sum (Sokal's window); at least 1."""
-    x = np.asarray(x, float) - np.mean(x)
+def correlation_time(x: np.ndarray, window: str = "sokal", max_lag: int | None = None) -> float:
+    """Integrated autocorrelation time 1 + 2 sum rho_k of x [samples], at least 1. The sum runs
+    to the first lag M >= 5 times the running sum (``window`` "sokal": Sokal's adaptive window)
+    or up to the first lag where rho turns negative ("positive": Geyer's initial positive
+    sequence, simplified), and over at most ``max_lag`` lags (default N - 1, "positive" N / 4)."""
+    x = np.asarray(x, float).ravel()
     n = x.size
-    if n < 4 or not np.any(x):
+    if n < 4 or np.std(x) == 0:
         return 1.0
-    f = np.fft.rfft(x, 2 * n)
-    acf = np.fft.irfft(f * np.conj(f))[:n]
-    acf = acf / acf[0]
-    tau = 1.0 + 2.0 * np.cumsum(acf[1:])
-    lags = np.arange(1, n)
-    ok = np.flatnonzero(lags >= 5.0 * tau)
+    default = n // 4 if window == "positive" else n - 1
+    lag = max(1, min(max_lag or default, n - 1))
+    r = _xcorr_fft(x, x, lag)[lag + 1 :]
+    if window == "positive":
+        neg = np.flatnonzero(r <= 0)
+        return float(max(1.0, 1.0 + 2.0 * np.sum(r[: neg[0]] if neg.size else r)))
+    tau = 1.0 + 2.0 * np.cumsum(r)
+    ok = np.flatnonzero(np.arange(1, r.size + 1) >= 5.0 * tau)
     return float(max(1.0, tau[ok[0]] if ok.size else tau[-1]))
 
 
