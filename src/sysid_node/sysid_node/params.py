@@ -85,10 +85,11 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Memory of the estimator as a time constant tau [s] (lambda = exp(-1/(tau fs)) at the "
        "identification rate, so the memory does not change with the sample rate); used when "
        "forgetting_factor is 0", lo=0.01, hi=3600.0, unit="s"),
-    _p("memory_periods", float, 5.0,
+    _p("memory_periods", float, 10.0,
        "With the automatic band (freq_max 0), the memory is at least this many periods of its "
        "lowest peak (a memory of a few periods cannot resolve a lightly damped low mode in "
-       "noise); 0 = memory_time_constant alone", lo=0.0, hi=1000.0),
+       "noise, nor tell it from a neighbour 10 % away); 0 = memory_time_constant alone",
+       lo=0.0, hi=1000.0),
     _p("max_modes", int, 10,
        "Largest number of modes reported as tracked (the strongest first) [-]; the model "
        "order defaults to twice this", lo=1, hi=50),
