@@ -46,7 +46,7 @@ A pole pair is kept as a *stable* (physical) mode when all of these hold:
    over an exponential memory of ``INPUT_RECENT_WINDOWS`` windows, over its mean
    (:func:`input_concentration`: 1 for white noise); a pole pair where it stands at least
    ``INPUT_OWN_LEVEL`` and ``INPUT_OWN_PROMINENCE`` times above its lowest value within
-   ``PEAK_SPAN`` (two bins at least) on both sides is not a mode *of this realization*
+   ``INPUT_PEAK_SPAN`` (two bins at least) on both sides is not a mode *of this realization*
    (:func:`input_own`). A red or band-pass input has no such peak (its low end falls from DC,
    its pass band is flat). A structural mode the sweep is passing through is rejected for that
    passage only: it is identified again once the sweep has moved on.
@@ -75,14 +75,15 @@ NOISE_PEAK_ALPHA = 0.01
 CHECK_ORDER_STEPS = (-4, 4, 8)
 #: Check orders in which a stable mode may be missing.
 STABLE_MISSES = 1
-#: Test 5: input concentration (Bartlett spectrum over its mean: 1 for white noise, about i
+#: Test 5: input concentration (Bartlett spectrum over its mean: 1 for white noise, about 2i/3
 #: for a sinusoid over 2i samples) from which a pole pair may be the input's own ...
 INPUT_OWN_LEVEL = 3.0
 #: ... over the recent windows: an exponential memory of this many window lengths 2i ...
 INPUT_RECENT_WINDOWS = 2
-#: ... when it stands this factor above its lowest value within PEAK_SPAN on both sides.
+#: ... when it stands this factor above its lowest value within INPUT_PEAK_SPAN (relative
+#: frequency, two Bartlett bins at least) on both sides.
 INPUT_OWN_PROMINENCE = 2.0
-PEAK_SPAN = 0.1
+INPUT_PEAK_SPAN = 0.1
 
 
 def check_orders(order: int, top: int) -> list[int]:
@@ -111,9 +112,10 @@ def input_concentration(cov: np.ndarray, n_inputs: int, freqs_hz: np.ndarray,
                         fs: float) -> np.ndarray:
     """Per frequency [Hz]: the largest over the inputs of e' M e / tr M, M the covariance of an
     input's 2i successive samples (``cov``: the (2 i m, 2 i m) covariance of the recent
-    windows' inputs [u_p; u_f], sample-major, input c at rows c, c + m, ...) and e the unit
-    phasor at that frequency over them: the Bartlett spectrum over its mean, about 1 for a
-    white or flat multisine input, up to about i for a sinusoid. Zeros without inputs."""
+    windows' inputs [u_p; u_f], sample-major, input c at rows c, c + m, ...) and e the
+    Hann-tapered phasor at that frequency over them (taper of unit mean square): the Bartlett
+    spectrum over its mean, about 1 for a white or flat multisine input, up to about 2i/3 for a
+    sinusoid. Zeros without inputs."""
     f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     m = int(n_inputs)
     if m == 0 or f.size == 0 or cov is None or cov.size == 0:
@@ -134,14 +136,14 @@ def input_concentration(cov: np.ndarray, n_inputs: int, freqs_hz: np.ndarray,
 def input_own(cov: np.ndarray, n_inputs: int, freqs_hz: np.ndarray, fs: float) -> np.ndarray:
     """Per frequency [Hz]: is it in a *peak* of the recent input's spectrum (test 5)? The
     concentration there (:func:`input_concentration`) is at least ``INPUT_OWN_LEVEL`` and at
-    least ``INPUT_OWN_PROMINENCE`` times its lowest value within ``PEAK_SPAN`` (at least two
+    least ``INPUT_OWN_PROMINENCE`` times its lowest value within ``INPUT_PEAK_SPAN`` (at least two
     Bartlett bins fs / 2i) below and above: a sweep's current stretch or a sine dwell, not the
     low end of a red (falling) input spectrum nor a flat band-pass one."""
     f = np.atleast_1d(np.asarray(freqs_hz, dtype=float))
     if f.size == 0 or int(n_inputs) == 0 or cov is None or cov.size == 0:
         return np.zeros(f.size, bool)
     half = max(cov.shape[0] // int(n_inputs), 1)  # 2 i
-    span = np.maximum(PEAK_SPAN * f, 2.0 * fs / half)
+    span = np.maximum(INPUT_PEAK_SPAN * f, 2.0 * fs / half)
     steps = np.arange(1, 5) / 4.0
     grid = np.concatenate([np.maximum(f[:, None] - span[:, None] * steps, 0.0), f[:, None],
                            f[:, None] + span[:, None] * steps], axis=1)  # (k, 9), DC at most
@@ -172,13 +174,13 @@ def flag_spurious(
     frequency_gate: float | None = 0.05,
     snr_threshold: float = 1.0,
     contribution_threshold: float = 0.0,
-    input_own: np.ndarray | None = None,
+    in_input_peak: np.ndarray | None = None,
 ) -> None:
     """Set ``stable`` and ``stable_orders`` of each mode (in place) from the tests above;
     ``check_frequencies`` holds the pole frequencies [Hz] of each check order,
     ``snr_threshold`` the noise-peak level (:func:`noise_peak_threshold`),
     ``contribution_threshold`` the overfit level (:func:`overfit_threshold`);
-    ``frequency_gate`` None skips test 4; ``input_own`` per mode: in a peak of the recent
+    ``frequency_gate`` None skips test 4; ``in_input_peak`` per mode: in a peak of the recent
     input's spectrum (:func:`input_own`; None skips test 5)."""
     for k, md in enumerate(modes):
         f = md.frequency_hz
@@ -195,5 +197,5 @@ def flag_spurious(
         determined = (frequency_gate is None or not math.isfinite(rel_std)
                       or Z_99 * rel_std <= frequency_gate)
         need = max(len(check_frequencies) - STABLE_MISSES, min(len(check_frequencies), 1))
-        own = input_own is not None and bool(input_own[k])
+        own = in_input_peak is not None and bool(in_input_peak[k])
         md.stable = hits >= need and above_floor and determined and not own
