@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sysid_node.core.recursive import GATE_WILD_PREDICTION
 from sysid_node.pipeline import Pipeline
 from sysid_node.scenarios.paper import paper_example_data
 
@@ -102,3 +103,24 @@ def test_a_lasting_new_signal_level_restarts_the_estimator(clean):
     pl, recs = _run(y, u)
     assert pl.estimator.level_restarts == 1
     assert _right(recs[-1])
+
+
+
+def test_a_wild_gate_prediction_is_not_used(clean):
+    """A realization from few samples per dimension can give the gate's predictor wild
+    coefficients; its predictions must not replace a rejected sample (the next predictions
+    would build on it and overflow): the gate predicts 0 there instead."""
+    u, y = clean
+    pl, _ = _run(y[:900], u[:900])
+    est = pl.estimator
+    est.flush()
+    hist = np.hstack([u[900:1000], y[900:1000]]) / np.r_[est._su, est._sy]  # scaled [u, y]
+    sane = est._gate_prediction(hist, est.block_rows)
+    assert np.all(np.abs(sane) < 10.0) and np.any(sane != 0.0)
+    est._theta1 = est._theta1 * 1e6
+    wild = est._gate_prediction(hist, est.block_rows)
+    assert np.all(np.abs(wild) <= GATE_WILD_PREDICTION)
+    with np.errstate(over="raise", invalid="raise"):
+        est.update(u[900:1200], _spike(y, 1e6)[900:1200])  # the spike at 10 s
+        est.flush()
+    assert est.status().outliers_rejected >= 1
