@@ -326,6 +326,8 @@ class SysidNode(Node):
             "health_reason": "; ".join(why for lv, why in faults if lv > 0),
             "sample_rate_hz": fs,
             "identification_rate_hz": st.get("id_fs", math.nan),
+            "band_split_hz": st.get("split_hz", math.nan),
+            "low_band_rate_hz": st.get("low_fs", math.nan),
             "output_rate_hz": rates.get("output", math.nan),
             "input_rate_hz": rates.get("input", math.nan),
             "forgetting_factor": st.get("lambda", values["forgetting_factor"]),

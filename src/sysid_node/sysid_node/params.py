@@ -302,6 +302,16 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     return int(min(i, SPECS["block_rows"].hi))
 
 
+def window_capped(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
+                  low_hz: float) -> bool:
+    """The automatic Hankel window cannot span half a period of ``low_hz`` [Hz] at ``fs`` [Hz]
+    within MAX_AUTO_WINDOW_ROWS (``effective_block_rows``; False with configured block rows)."""
+    if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
+        return False
+    width = 2 * (n_inputs + n_outputs)
+    return math.ceil(fs / (2.0 * low_hz) - 1e-9) > MAX_AUTO_WINDOW_ROWS // width
+
+
 def decimation_factor(values: dict[str, Any], fs: float, auto_edge: float = math.nan) -> int:
     """Decimation factor to the identification rate: ``decimation`` when > 0, else automatic
     (:func:`sysid_node.decimation.auto_factor`) for ``freq_max``, or with ``freq_max: 0`` for

@@ -25,6 +25,7 @@ from sysid_node import params as P
 from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
+from sysid_node.low_band import LowBand
 from sysid_node.records import (
     STATUS_NAMES,
     EstimateRecord,
@@ -109,6 +110,11 @@ class Pipeline:
         self.band_edge = math.nan
         #: the automatic band's lowest peak [Hz] (NaN until chosen): the block rows span it
         self.band_low = math.nan
+        #: the automatic band's split (core/band.split_frequency, NaN: none): the modes below
+        #: it come from a second estimator (low_band.py)
+        self.split_hz = math.nan
+        self.low_band: LowBand | None = None
+        self._absorbing = False
         self.estimator_band_max = math.inf
         self._raw: list[Chunk] = []
         self._next_check_ns: int | None = None
@@ -142,6 +148,8 @@ class Pipeline:
             max_modes=v["max_modes"],
             stabilize=v["spurious_rejection"],
         )
+        self._layout = (n_outputs, n_inputs)
+        self.low_band = self._new_low_band()
         if not (keep_tracks and self.tracker is not None):
             self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
             self._tracked: list = []
@@ -154,8 +162,16 @@ class Pipeline:
         self.log(
             f"estimator started: {n_outputs} output(s), {kind}, {rate}, block rows "
             f"{self.block_rows}, lambda {P.effective_lambda(v, fs, self.band_low):.5f}, band "
-            f"{fmin:g}-{fmax:g} Hz"
+            f"{fmin:g}-{fmax:g} Hz" + (f"; {self.low_band.describe()}" if self.low_band else "")
         )
+
+    def _new_low_band(self) -> LowBand | None:
+        """The estimator of the group below the automatic band's split (None: no split)."""
+        if not (self.auto_band and math.isfinite(self.split_hz)
+                and math.isfinite(self.band_edge)):
+            return None
+        return LowBand(self._core[0], self.values, *self._layout, self.identification_rate,
+                       self.split_hz, self.band_low)
 
     def _tracker_kwargs(self, cls: type) -> dict[str, Any]:
         """Tracking gates of the ModeTracker from the parameters."""
@@ -350,6 +366,7 @@ class Pipeline:
             else:
                 self.band_edge = math.nan
                 self.band_low = math.nan
+                self.split_hz = math.nan
                 self._next_check_ns = None
         if not self.auto_band:
             return self._feed_estimator(c, realize)
@@ -422,8 +439,15 @@ class Pipeline:
         choice = self._band_from_raw()
         self.band_edge = choice.fmax_hz
         self.band_low = choice.low_hz
+        from sysid_node.core.band import split_frequency
+
+        fs_id = self.sample_rate / P.decimation_factor(self.values, self.sample_rate,
+                                                       choice.fmax_hz)
+        capped = P.window_capped(self.values, *self._layout, fs_id, choice.low_hz)
+        self.split_hz = split_frequency(choice) if capped else math.nan
         self._next_check_ns = int(self._raw[-1].stamps_ns[-1]) + round(BAND_CHECK_PERIOD_S * 1e9)
         self._widen_votes = 0
+        self._split_votes = 0
         top = f"{choice.top_hz:.4g} Hz" if choice.found else "none"
         low = f"{choice.low_hz:.4g} Hz" if math.isfinite(choice.low_hz) else "none"
         self.log(f"automatic band 0-{self.band[1]:g} Hz (structure above the noise floor up "
@@ -434,8 +458,48 @@ class Pipeline:
         if (factor != self.decimator.factor or self.band[1] < self.estimator_band_max
                 or rows != self.block_rows):
             self._rebuild_from_raw()
-        elif self.estimator is not None and hasattr(self.estimator, "set_forgetting_factor"):
+            return
+        if self.estimator is not None and hasattr(self.estimator, "set_forgetting_factor"):
             self.estimator.set_forgetting_factor(self.forgetting_factor)  # memory_periods
+        self._start_low_band()
+
+    def _start_low_band(self) -> None:
+        """The estimator of the group below the split, fed the recent raw data without
+        realizations (the main estimator goes on untouched)."""
+        self.low_band = self._new_low_band()
+        if self.low_band is None:
+            return
+        self.log(f"automatic {self.low_band.describe()}")
+        decimator = Decimator(self.decimator.factor, self.sample_rate)
+        for k, seg in enumerate(self._raw_segments()):
+            if k:
+                decimator.restart()
+                self.low_band.restart()
+            whole = _concat(seg)
+            _, y, u = decimator.process(whole.stamps_ns, whole.y, whole.u)
+            self.low_band.update(u, y, realize=False)
+
+    def _recheck_split(self) -> None:
+        """While the main estimator's window is capped, look for the split again on the recent
+        raw data (the first choice sees 4 s of data in coarse bins): a split found, or one
+        SPLIT_MOVE above the current one, on two successive checks starts the second
+        estimator there. A split never moves down nor goes (as the band never narrows): the
+        group below only grows."""
+        if not P.window_capped(self.values, *self._layout, self.identification_rate,
+                               self.band_low):
+            return
+        from sysid_node.core.band import split_frequency
+
+        new, cur = split_frequency(self._band_from_raw()), self.split_hz
+        if not math.isfinite(new) or (math.isfinite(cur) and new < SPLIT_MOVE * cur):
+            self._split_votes = 0
+            return
+        self._split_votes += 1
+        if self._split_votes < 2:
+            return
+        self._split_votes = 0
+        self.split_hz = new
+        self._start_low_band()
 
     def _recheck_band(self, last_ns: int) -> None:
         """Recheck the band on the recent raw data; widen it (rebuild the estimator from those
@@ -443,6 +507,7 @@ class Pipeline:
         the roll-off of a strong mode) shows above WIDEN_FRACTION of it on two
         successive checks. It never narrows (no rebuild for a quiet spell)."""
         self._next_check_ns = last_ns + round(BAND_CHECK_PERIOD_S * 1e9)
+        self._recheck_split()
         choice = self._band_from_raw(WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR)
         if not (choice.found and choice.top_hz > WIDEN_FRACTION * self.band_edge
                 and choice.fmax_hz > self.band_edge):
@@ -468,12 +533,7 @@ class Pipeline:
         samples = self.update_samples
         rate, recent, last_bucket = self.identification_rate, self._recent, self._last_bucket
         self._build_estimator(*self._layout, keep_tracks=True)
-        segments: list[list[Chunk]] = []
-        for r in self._raw:
-            if r.new_segment or not segments:
-                segments.append([])
-            segments[-1].append(r)
-        for k, seg in enumerate(segments):
+        for k, seg in enumerate(self._raw_segments()):
             # gaps inside restart the window as they did
             whole = dataclasses.replace(_concat(seg), new_segment=bool(k), reset=False)
             self._feed_estimator(whole, realize=False)
@@ -483,6 +543,15 @@ class Pipeline:
             self._last_bucket = max(self._last_bucket, last_bucket)
         self.ingest.counters["estimates_skipped"] = skipped
         self.update_samples = samples
+
+    def _raw_segments(self) -> list[list[Chunk]]:
+        """The recent raw data as contiguous segments (a gap starts a new one)."""
+        segments: list[list[Chunk]] = []
+        for r in self._raw:
+            if r.new_segment or not segments:
+                segments.append([])
+            segments[-1].append(r)
+        return segments
 
     def _feed_estimator(self, c: Chunk, realize: bool = True) -> list[EstimateRecord]:
         """Decimate a chunk and feed it to the estimator (built at its first chunk) up to each
@@ -547,11 +616,13 @@ class Pipeline:
         est = self.estimator
         keep = est.realization_interval
         est.realization_interval = 1 << 62
+        self._absorbing = True
         try:
             self._flush_pending()
             if hasattr(est, "flush"):
                 est.flush()
         finally:
+            self._absorbing = False
             est.realization_interval = keep
             if getattr(est, "_since_realization", 0) >= keep:
                 est._since_realization = keep - 1
@@ -559,6 +630,8 @@ class Pipeline:
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
         self._recent.clear()
+        if self.low_band is not None:
+            self.low_band.restart()
         est = self.estimator
         if hasattr(est, "restart_window"):
             est.restart_window()
@@ -574,11 +647,19 @@ class Pipeline:
         t0 = time.perf_counter()
         self._recent.add(c.y, c.u)
         s0 = int(getattr(est, "samples_seen", self._samples))
+        low = self.low_band
+        if low is not None:
+            low.update(c.u, c.y, not self._absorbing, (s0 + len(c)) / self.identification_rate)
         models = est.update(c.u, c.y) or []
         for mdl in models:
-            k = round(float(getattr(mdl, "time_s", math.nan)) * self.identification_rate) - s0 - 1
+            t_data = float(getattr(mdl, "time_s", math.nan))
+            k = round(t_data * self.identification_rate) - s0 - 1
             k = min(max(k, 0), len(c) - 1) if math.isfinite(k) else len(c) - 1
-            self._track(list(getattr(mdl, "modes", [])), int(c.stamps_ns[k]) * 1e-9)
+            modes = list(getattr(mdl, "modes", []))
+            if low is not None:  # the group below the split from its own estimator
+                modes = [m for m in modes if m.frequency_hz >= low.split_hz] + low.current(
+                    t_data, self.values["realization_rate"])
+            self._track(modes, int(c.stamps_ns[k]) * 1e-9)
         dt = time.perf_counter() - t0
         self.update_seconds += dt
         self.last_update_cost = dt / len(c)
@@ -730,6 +811,8 @@ class Pipeline:
                         break
         if est is None:
             return
+        if self.low_band is not None:
+            self.low_band.apply_live(v, changes)
         if "spurious_rejection" in changes and hasattr(est, "stabilize"):
             est.stabilize = bool(v["spurious_rejection"])
         if {"forgetting_factor", "memory_time_constant", "memory_periods"} & changes.keys():
@@ -763,6 +846,8 @@ BAND_CHECK_WINDOW_S = 10.0
 WIDEN_FRACTION = 0.85
 WIDEN_PROMINENCE = 2.0
 WIDEN_RATIO_FACTOR = 4.0
+#: A split found again this factor above the current one moves there (two checks in a row).
+SPLIT_MOVE = 1.5
 #: Residual samples needed before a spectrum is made (a few Welch segments).
 SPECTRUM_MIN_SAMPLES = 256
 #: Recent data the residual spectrum is computed over [s].

@@ -83,6 +83,8 @@ def worker_status(pl: Any) -> dict[str, Any]:
         "rates": ing.rates(),
         "fs": pl.sample_rate,
         "id_fs": pl.identification_rate,
+        "split_hz": pl.split_hz if pl.low_band is not None else math.nan,
+        "low_fs": pl.low_band.rate if pl.low_band is not None else math.nan,
         "mode": ing.mode,
         "cost": cost,
         "lambda": pl.forgetting_factor,

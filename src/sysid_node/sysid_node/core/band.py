@@ -72,6 +72,14 @@ FINE_SEGMENTS = 3
 #: Prominence of the lowest mode's rise in the fine spectrum (few averages: a noise bin stands
 #: 16 x above the lowest of the bins below it with a probability of a few per mille).
 FINE_PROMINENCE = 16.0
+#: A peak that counts for the split stands this factor above the lowest ratio on both sides.
+PEAK_PROMINENCE = 2.0
+#: A band wider than this many times its lowest peak is split (``split_frequency``) ...
+SPLIT_SPAN = 20.0
+#: ... at the widest gap between successive structure peaks, when it is at least this ratio
+#: and this many Welch bins.
+SPLIT_GAP = 2.0
+SPLIT_MIN_BINS = 4
 
 
 @dataclass(frozen=True)
@@ -86,6 +94,8 @@ class BandChoice:
     top_hz: float
     resolution_hz: float
     low_hz: float = math.nan
+    #: centres of the output bins with structure that are clear peaks (``PEAK_PROMINENCE``) [Hz]
+    peaks_hz: tuple[float, ...] = ()
 
     @property
     def found(self) -> bool:
@@ -153,14 +163,45 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
             low_hz = fine
     level = ratio_factor * STRUCTURE_RATIO
     hit = _peaks(out, prominence) & (out > level)
+    clear = _peaks(out, PEAK_PROMINENCE)
+    clear[:PEAK_MIN_BINS] = True  # the first bins have too few below for a prominence
+    peaks = tuple(float(x) for x in f[clear & (out > level)])
     if ratios.shape[1] > n_out:  # an input's lines, not its broadband level (see INPUT_LINE)
         inp = ratios[:, n_out:].max(axis=1)
         hit |= _peaks(inp, max(prominence, INPUT_LINE)) & (inp > level)
     hit = np.flatnonzero(hit)
     if hit.size == 0:
-        return BandChoice(full, math.nan, df, low_hz)
+        return BandChoice(full, math.nan, df, low_hz, peaks)
     top = float(f[hit[-1]] + df)  # upper edge of the bin: a mode inside it is below
-    return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz)
+    return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz, peaks)
+
+
+def split_frequency(choice: BandChoice) -> float:
+    """Where a wide band splits in two [Hz], NaN for no split.
+
+    One realization cannot serve modes two decades apart: its Hankel window (block rows over
+    the rate, Eq. (A1)) must span half a period of the lowest (``params.effective_block_rows``)
+    within a row budget, while the rate must stay above the highest; a 3 Hz mode at 750 Hz
+    needs 125 block rows. When the band edge is more than ``SPLIT_SPAN`` times the lowest
+    peak, the band splits at the geometric middle of the widest gap (at least ``SPLIT_GAP`` and
+    ``SPLIT_MIN_BINS`` bins) between successive clear peaks (not the leakage or roll-off maxima
+    beside a strong one; any bin with structure among the first, which have too few bins below
+    them to stand out): the group below is identified by an estimator of its own at a rate of
+    its own (``low_band.py``)."""
+    low, edge = choice.low_hz, choice.fmax_hz
+    if not (choice.found and math.isfinite(low) and low > 0 and edge > SPLIT_SPAN * low):
+        return math.nan
+    points = np.array(sorted(p for p in choice.peaks_hz if p > low))
+    if points.size < 2:
+        return math.nan
+    gaps = points[1:] / points[:-1]
+    # bin centres a few bins apart: the ratio of neighbouring coarse bins (1 and 2 Hz) says
+    # nothing about where the modes are
+    gaps[np.diff(points) < SPLIT_MIN_BINS * choice.resolution_hz] = 0.0
+    k = int(np.argmax(gaps))
+    if gaps[k] < SPLIT_GAP:
+        return math.nan
+    return float(math.sqrt(points[k] * points[k + 1]))
 
 
 def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float) -> float:

@@ -1,0 +1,103 @@
+"""A wide automatic band splits in two (issue #10): ``core.band.split_frequency``,
+``params.window_capped`` and the pipeline's second estimator (``low_band.py``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+from sysid_node.core.band import BandChoice, split_frequency, structure_band
+from sysid_node.suite import T0_NS as T0
+from sysid_node.suite import run_output_only
+
+from sysid_node import params as P
+
+
+def _choice(low: float, peaks: tuple[float, ...], fmax: float) -> BandChoice:
+    return BandChoice(fmax, max(peaks), 1.0, low, peaks)
+
+
+def test_a_wide_band_splits_in_its_widest_gap_between_peaks():
+    c = _choice(2.5, (3.0, 4.2, 12.0, 80.0, 120.0, 190.0), 300.0)
+    assert split_frequency(c) == pytest.approx(math.sqrt(12.0 * 80.0))
+
+
+def test_neighbouring_coarse_bins_are_not_a_gap():
+    # 4 s of a 256 Hz record: 1 Hz bins; 1 -> 2 Hz is a ratio of 2 but no room for a split
+    c = _choice(0.75, (1.0, 2.0, 3.0, 5.0, 10.0, 12.0), 102.4)
+    assert split_frequency(c) == pytest.approx(math.sqrt(50.0))
+
+
+def test_a_narrow_band_or_one_without_a_gap_does_not_split():
+    assert math.isnan(split_frequency(_choice(2.5, (3.0, 12.0, 30.0), 45.0)))  # 18 x its low
+    spread = tuple(3.0 * 1.5 ** k for k in range(12))  # 3 .. 260 Hz, no gap of 2
+    assert math.isnan(split_frequency(_choice(2.5, spread, 400.0)))
+    # peaks at or below the lowest peak's edge do not count
+    assert math.isnan(split_frequency(_choice(2.5, (1.0, 2.0), 300.0)))
+
+
+def test_the_window_is_capped_when_half_the_lowest_period_needs_more_rows_than_allowed():
+    v = P.defaults()
+    assert P.window_capped(v, 1, 1, 750.0, 2.0)  # 188 rows > 280 / 4
+    assert not P.window_capped(v, 1, 1, 100.0, 2.0)
+    assert not P.window_capped(v, 1, 1, 750.0, math.nan)
+    assert not P.window_capped({**v, "block_rows": 20}, 1, 1, 750.0, 2.0)  # configured
+
+
+def _resonance(rng, fs, f, zeta, n):
+    """A mode driven by white noise: its exact discrete pole pair (no frequency warping)."""
+    w, dt = 2 * np.pi * f, 1.0 / fs
+    r = np.exp(-zeta * w * dt)
+    a = [1.0, -2 * r * np.cos(w * np.sqrt(1 - zeta**2) * dt), r * r]
+    x = signal.lfilter([1.0], a, rng.standard_normal(n + 4000))[4000:]
+    return x / x.std()
+
+
+MODES = ((2.2, 0.005), (2.6, 0.01), (4.1, 0.01), (5.3, 0.02),
+         (110.0, 0.01), (135.0, 0.01), (160.0, 0.02), (190.0, 0.01), (240.0, 0.02))
+FS = 800.0
+
+
+@pytest.fixture(scope="module")
+def wide_record():
+    """Two outputs, output-only: two modes near 3 Hz and two above 100 Hz at 800 Hz (a 2.5 Hz
+    period is 320 samples; the main estimator's window is capped at 70 block rows)."""
+    rng = np.random.default_rng(21)
+    n = int(24 * FS)
+    q = np.stack([_resonance(rng, FS, f, z, n) for f, z in MODES], axis=1)
+    shapes = rng.uniform(0.3, 1.0, (2, len(MODES))) * rng.choice([-1.0, 1.0], (2, len(MODES)))
+    y = q @ shapes.T
+    return y + 0.05 * y.std(axis=0) * rng.standard_normal(y.shape)
+
+
+def test_structure_band_sees_both_groups_and_the_gap(wide_record):
+    c = structure_band(wide_record[: int(4 * FS)], None, FS)
+    assert 3.3 < split_frequency(c) < 110.0, c
+
+
+def test_pipeline_identifies_the_low_group_with_its_own_estimator(wide_record):
+    logs: list[str] = []
+    pl, recs = run_output_only(wide_record, FS, None, 40, logs.append)
+    assert any("split" in m for m in logs), logs
+    assert pl.low_band is not None and 3.3 < pl.split_hz < 110.0
+    assert pl.low_band.rate < FS / 2  # decimated
+    t = (np.array([r.stamp_ns for r in recs]) - T0) * 1e-9
+    last = [r for r, tk in zip(recs, t, strict=True) if tk >= t[-1] - 6.0]
+    for f, _ in MODES:
+        right = [any(m.status == "tracked" and abs(m.frequency_hz / f - 1) <= 0.02
+                     for m in r.modes) for r in last]
+        assert np.mean(right) >= 0.8, (f, np.mean(right))
+
+
+def test_chunking_does_not_change_the_numbers_with_a_split(wide_record):
+    y = wide_record[: int(7 * FS)]
+    _, a = run_output_only(y, FS, None, 5)
+    pl, b = run_output_only(y, FS, None, 37)
+    assert pl.low_band is not None
+    assert len(a) == len(b) > 0
+    for ra, rb in zip(a, b, strict=True):
+        assert ra.stamp_ns == rb.stamp_ns
+        np.testing.assert_array_equal([m.frequency_hz for m in ra.modes],
+                                      [m.frequency_hz for m in rb.modes])
