@@ -67,8 +67,9 @@ GATE_REFERENCE_WINDOWS = 10
 #: Smallest reference mean square of the outlier gate (scaled units: the channels' start-up RMS
 #: is 1), (3 %)^2.
 GATE_REFERENCE_FLOOR = 1e-3
-#: A gate prediction larger than this (scaled units) is wild: 0 is used instead.
-GATE_WILD_PREDICTION = 1e3
+#: A gate prediction this many times larger than the largest output sample of its block (or
+#: than the start-up RMS, scaled units) is wild: 0 is used instead.
+GATE_WILD_FACTOR = 1e3
 
 
 class RecursiveDSRA:
@@ -498,9 +499,10 @@ class RecursiveDSRA:
         if m:
             p += hist[first:, :m] @ th[:, npast : npast + m].T
         # a realization from few samples per dimension can have wild predictor coefficients:
-        # a prediction far beyond the signal's level is no reference (and must not replace a
-        # rejected sample: the next predictions would build on it and overflow)
-        wild = ~np.all(np.abs(p) <= GATE_WILD_PREDICTION, axis=1)  # NaN too
+        # a prediction far beyond the samples it is made from is no reference (and must not
+        # replace a rejected sample: the next predictions would build on it and overflow)
+        level = max(float(np.max(np.abs(hist[:, m:]), initial=0.0)), 1.0)
+        wild = ~np.all(np.abs(p) <= GATE_WILD_FACTOR * level, axis=1)  # NaN too
         p[wild] = 0.0
         pred[first - start :] = p
         return pred
