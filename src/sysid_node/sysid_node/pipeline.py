@@ -119,6 +119,7 @@ class Pipeline:
         self._raw: list[Chunk] = []
         self._next_check_ns: int | None = None
         self._widen_votes = 0
+        self._split_votes = 0
 
     def _build_estimator(self, n_outputs: int, n_inputs: int, keep_tracks: bool = False) -> None:
         RecursiveDSRA, ModeTracker = self._core
@@ -465,19 +466,23 @@ class Pipeline:
 
     def _start_low_band(self) -> None:
         """The estimator of the group below the split, fed the recent raw data without
-        realizations (the main estimator goes on untouched)."""
+        realizations (the main estimator goes on untouched) up to the samples still held for
+        it (``_pending``), which both will get at the next flush."""
         self.low_band = self._new_low_band()
         if self.low_band is None:
             return
         self.log(f"automatic {self.low_band.describe()}")
+        held = [p for p in self._pending if len(p)]
+        end = int(held[0].stamps_ns[0]) if held else None
         decimator = Decimator(self.decimator.factor, self.sample_rate)
         for k, seg in enumerate(self._raw_segments()):
             if k:
                 decimator.restart()
                 self.low_band.restart()
             whole = _concat(seg)
-            _, y, u = decimator.process(whole.stamps_ns, whole.y, whole.u)
-            self.low_band.update(u, y, realize=False)
+            stamps, y, u = decimator.process(whole.stamps_ns, whole.y, whole.u)
+            n = len(stamps) if end is None else int(np.searchsorted(stamps, end))
+            self.low_band.update(None if u is None else u[:n], y[:n], realize=False)
 
     def _recheck_split(self) -> None:
         """While the main estimator's window is capped, look for the split again on the recent
@@ -491,13 +496,9 @@ class Pipeline:
         from sysid_node.core.band import split_frequency
 
         new, cur = split_frequency(self._band_from_raw()), self.split_hz
-        if not math.isfinite(new) or (math.isfinite(cur) and new < SPLIT_MOVE * cur):
-            self._split_votes = 0
+        up = math.isfinite(new) and not (math.isfinite(cur) and new < SPLIT_MOVE * cur)
+        if not self._voted("_split_votes", up):
             return
-        self._split_votes += 1
-        if self._split_votes < 2:
-            return
-        self._split_votes = 0
         self.split_hz = new
         self._start_low_band()
 
@@ -509,19 +510,22 @@ class Pipeline:
         self._next_check_ns = last_ns + round(BAND_CHECK_PERIOD_S * 1e9)
         self._recheck_split()
         choice = self._band_from_raw(WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR)
-        if not (choice.found and choice.top_hz > WIDEN_FRACTION * self.band_edge
-                and choice.fmax_hz > self.band_edge):
-            self._widen_votes = 0
+        wider = (choice.found and choice.top_hz > WIDEN_FRACTION * self.band_edge
+                 and choice.fmax_hz > self.band_edge)
+        if not self._voted("_widen_votes", wider):
             return
-        self._widen_votes += 1
-        if self._widen_votes < 2:
-            return
-        self._widen_votes = 0
         self.band_edge = choice.fmax_hz
         self.log(f"automatic band widened to 0-{self.band_edge:g} Hz (structure up to "
                  f"{choice.top_hz:.4g} Hz): estimator rebuilt from the last "
                  f"{BAND_CHECK_WINDOW_S:g} s of data")
         self._rebuild_from_raw()
+
+    def _voted(self, counter: str, yes: bool) -> bool:
+        """Hysteresis of the band's and the split's changes: ``yes`` on two checks in a row
+        (the vote count ``counter`` starts again after a no and after a change)."""
+        n = getattr(self, counter) + 1 if yes else 0
+        setattr(self, counter, 0 if n >= 2 else n)
+        return n >= 2
 
     def _rebuild_from_raw(self) -> None:
         """A new estimator (and decimator) for the current band, fed the recent raw data
