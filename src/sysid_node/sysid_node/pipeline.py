@@ -155,7 +155,6 @@ class Pipeline:
             self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
             self._tracked: list = []
         self._recent = _Recent(int(RESIDUAL_WINDOW_S * fs) if np.isfinite(fs) else 0)
-        self._layout = (n_outputs, n_inputs)
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
         rate = f"{fs:g} Hz"
         if self.decimator.factor > 1:
