@@ -118,8 +118,9 @@ def test_a_wild_gate_prediction_is_not_used(clean):
     sane = est._gate_prediction(hist, est.block_rows)
     assert np.all(np.abs(sane) < 10.0) and np.any(sane != 0.0)
     est._theta1 = est._theta1 * 1e6
-    wild = est._gate_prediction(hist, est.block_rows)
-    assert np.all(np.abs(wild) <= GATE_WILD_FACTOR * max(np.abs(hist).max(), 1.0))
+    level = max(np.abs(hist[:, est.n_inputs:]).max(), 1.0)
+    wild = est._gate_prediction(hist, est.block_rows, level)
+    assert np.all(np.abs(wild) <= GATE_WILD_FACTOR * level)
     with np.errstate(over="raise", invalid="raise"):
         est.update(u[900:1200], _spike(y, 1e6)[900:1200])  # the spike at 10 s
         est.flush()

@@ -67,8 +67,8 @@ GATE_REFERENCE_WINDOWS = 10
 #: Smallest reference mean square of the outlier gate (scaled units: the channels' start-up RMS
 #: is 1), (3 %)^2.
 GATE_REFERENCE_FLOOR = 1e-3
-#: A gate prediction this many times larger than the largest output sample of its block (or
-#: than the start-up RMS, scaled units) is wild: 0 is used instead.
+#: A gate prediction this many times larger than the largest output sample of the block as it
+#: came (or than the start-up RMS, scaled units) is wild: 0 is used instead.
 GATE_WILD_FACTOR = 1e3
 
 
@@ -430,8 +430,10 @@ class RecursiveDSRA:
         q_y, q_u = self._gate_q
         k = 0
         e2_all = np.zeros((n, l))
+        # the level of the block as it came (the replaced samples must not raise it)
+        level = max(float(np.max(np.abs(data[:, m:]), initial=0.0)), 1.0)
         while k < n:
-            pred = self._gate_prediction(hist, n0 + k)
+            pred = self._gate_prediction(hist, n0 + k, level)
             e2 = (hist[n0 + k :, m:] - pred) ** 2
             e2_all[k:] = e2
             nu_y = (e2 / ref[m:]).sum(axis=1)
@@ -480,9 +482,11 @@ class RecursiveDSRA:
         self._su, self._sy = self._fixed_su, self._fixed_sy
         self._last_outlier = 0
 
-    def _gate_prediction(self, hist: np.ndarray, start: int) -> np.ndarray:
+    def _gate_prediction(self, hist: np.ndarray, start: int, level: float = 1.0) -> np.ndarray:
         """Causal one-step predictions of the outputs of rows ``start..`` of ``hist`` (zero
-        where fewer than i samples precede, or before the first realization)."""
+        where fewer than i samples precede, before the first realization, or where the
+        prediction is wild: beyond GATE_WILD_FACTOR x ``level``, the block's largest output
+        magnitude)."""
         m, l, i = self.n_inputs, self.n_outputs, self.block_rows
         rows = hist.shape[0] - start
         pred = np.zeros((rows, l))
@@ -499,9 +503,8 @@ class RecursiveDSRA:
         if m:
             p += hist[first:, :m] @ th[:, npast : npast + m].T
         # a realization from few samples per dimension can have wild predictor coefficients:
-        # a prediction far beyond the samples it is made from is no reference (and must not
-        # replace a rejected sample: the next predictions would build on it and overflow)
-        level = max(float(np.max(np.abs(hist[:, m:]), initial=0.0)), 1.0)
+        # a prediction far beyond the data is no reference (and must not replace a rejected
+        # sample: the next predictions would build on it and overflow)
         wild = ~np.all(np.abs(p) <= GATE_WILD_FACTOR * level, axis=1)  # NaN too
         p[wild] = 0.0
         pred[first - start :] = p
