@@ -297,9 +297,13 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     width = 2 * (n_inputs + n_outputs)
     i = max(need, 2, min(35, round(AUTO_WINDOW_ROWS / width)))
     if math.isfinite(low_hz) and low_hz > 0 and math.isfinite(fs) and fs > 0:
-        span = math.ceil(fs / (2.0 * low_hz) - 1e-9)
-        i = max(i, min(span, MAX_AUTO_WINDOW_ROWS // width))
+        i = max(i, min(_half_period_rows(fs, low_hz), MAX_AUTO_WINDOW_ROWS // width))
     return int(min(i, SPECS["block_rows"].hi))
+
+
+def _half_period_rows(fs: float, low_hz: float) -> int:
+    """Block rows for the Hankel window to span half a period of ``low_hz`` at ``fs``."""
+    return math.ceil(fs / (2.0 * low_hz) - 1e-9)
 
 
 def window_capped(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
@@ -308,8 +312,7 @@ def window_capped(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: flo
     within MAX_AUTO_WINDOW_ROWS (``effective_block_rows``; False with configured block rows)."""
     if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
         return False
-    width = 2 * (n_inputs + n_outputs)
-    return math.ceil(fs / (2.0 * low_hz) - 1e-9) > MAX_AUTO_WINDOW_ROWS // width
+    return _half_period_rows(fs, low_hz) > MAX_AUTO_WINDOW_ROWS // (2 * (n_inputs + n_outputs))
 
 
 def decimation_factor(values: dict[str, Any], fs: float, auto_edge: float = math.nan) -> int:
