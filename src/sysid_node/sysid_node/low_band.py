@@ -27,25 +27,43 @@ from sysid_node.decimation import Decimator
 #: The low group's rate is at least this many times the split frequency (its modes below a
 #: third of the rate, inside the decimation filter's pass band at 0.4 x the rate) ...
 RATE_PER_SPLIT = 3.0
+#: The largest decimation factor of the low group.
+MAX_FACTOR = 100
+
+
+def max_split_hz(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
+                 low_hz: float) -> float:
+    """The highest split [Hz] at which the low group's Hankel window can still span half a
+    period of ``low_hz`` [Hz] (``params.window_capped`` false at its rate, a divisor of ``fs``
+    [Hz]): the rate may be at most 2 ``low_hz`` times the row budget, and the split at most
+    1/RATE_PER_SPLIT of it. Infinite with configured block rows."""
+    if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
+        return math.inf
+    cap = P.MAX_AUTO_WINDOW_ROWS // (2 * (n_inputs + n_outputs))
+    factor = min(MAX_FACTOR, max(1, math.ceil(fs / (2.0 * low_hz * cap) - 1e-9)))
+    return fs / factor / RATE_PER_SPLIT
 
 
 class LowBand:
     """Decimator and RecursiveDSRA of the group below ``split_hz`` [Hz].
 
     ``fs`` [Hz] is the main estimator's rate (the samples this one is fed), ``low_hz`` the
-    band's lowest peak (the window and the memory follow it as for the main estimator)."""
+    band's lowest peak (the window and the memory follow it as for the main estimator),
+    ``n_peaks`` the clear structure peaks below the split (the model order,
+    ``params.effective_max_order``)."""
 
     def __init__(self, estimator_cls: type, values: dict[str, Any], n_outputs: int,
-                 n_inputs: int, fs: float, split_hz: float, low_hz: float) -> None:
+                 n_inputs: int, fs: float, split_hz: float, low_hz: float,
+                 n_peaks: int = 0) -> None:
         self.split_hz = float(split_hz)
         rows = P.effective_block_rows(values, n_outputs, n_inputs)  # the default window
         rate = max(RATE_PER_SPLIT * split_hz, 2.0 * low_hz * rows)
-        factor = max(1, min(100, math.floor(fs / rate)))
+        factor = max(1, min(MAX_FACTOR, math.floor(fs / rate + 1e-9)))
         self.decimator = Decimator(factor, fs)
         self.rate = fs / factor
         self.block_rows = P.effective_block_rows(values, n_outputs, n_inputs, self.rate, low_hz)
         top = n_outputs * (self.block_rows - 1)
-        max_order = min(values["max_order"], top) if values["max_order"] else None
+        self.max_order = max_order = P.effective_max_order(values, n_peaks, top)
         self.low_hz = low_hz
         self.estimator = estimator_cls(
             n_outputs,
@@ -74,7 +92,7 @@ class LowBand:
         if self.decimator.factor > 1:
             rate += f" (decimated by {self.decimator.factor})"
         return (f"band split at {self.split_hz:.4g} Hz: the modes below it from a second "
-                f"estimator at {rate}, block rows {self.block_rows}")
+                f"estimator at {rate}, block rows {self.block_rows}, order {self.max_order}")
 
     def update(self, u: np.ndarray | None, y: np.ndarray, realize: bool = True,
                end_s: float = math.nan) -> None:
@@ -85,18 +103,10 @@ class LowBand:
         _, yd, ud = self.decimator.process(stamps, y, u)
         if not len(yd):
             return
-        est = self.estimator
         if not realize:
-            keep = est.realization_interval
-            est.realization_interval = 1 << 62
-            try:
-                est.update(ud, yd)
-                est.flush()
-            finally:
-                est.realization_interval = keep
-                est._since_realization = min(est._since_realization, keep - 1)
+            self.estimator.absorb(ud, yd)
             return
-        models = est.update(ud, yd) or []
+        models = self.estimator.update(ud, yd) or []
         if models:
             # contribution is over the innovation variance, which for the same noise level
             # (spectral density) scales with the rate: on the main estimator's scale, so that

@@ -141,6 +141,11 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("tracking_drop_timeout", float, 30.0,
        "Time without a match after which a lost mode leaves the estimate [s]", lo=0.0,
        hi=3600.0, unit="s"),
+    _p("tracking_median_count", int, 5,
+       "A tracked mode's frequency and damping are the medians of its last N raw estimates "
+       "(a burst in the data throws a realization or two off; 5 realizations at "
+       "realization_rate 20 Hz lag a drift by 0.1 s) [-]; 1 = the latest estimate", lo=1,
+       hi=20),
     _p("spurious_rejection", bool, True,
        "Track only modes that pass the spurious-mode tests of each realization (stable across "
        "model orders, above the noise peak and overfit levels, determined frequency; "
@@ -299,6 +304,22 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     if math.isfinite(low_hz) and low_hz > 0 and math.isfinite(fs) and fs > 0:
         i = max(i, min(_half_period_rows(fs, low_hz), MAX_AUTO_WINDOW_ROWS // width))
     return int(min(i, SPECS["block_rows"].hi))
+
+
+#: Modes of the automatic model order per clear structure peak of an estimator's band: a band
+#: of many closely spaced modes (a frame's first bending and torsion modes) with an order of
+#: 2 max_modes leaves its weakest ones out of the realization for seconds.
+ORDER_PER_PEAK = 2
+
+
+def effective_max_order(values: dict[str, Any], n_peaks: int, top: int) -> int:
+    """``max_order`` when > 0; else 2 x the larger of ``max_modes`` and ORDER_PER_PEAK x
+    ``n_peaks`` (the clear structure peaks of the estimator's band, ``core/band.py``; 0 while
+    unknown); at most ``top`` (the largest order the block rows allow)."""
+    k = int(values.get("max_order", 0))
+    if k > 0:
+        return min(k, top)
+    return min(2 * max(int(values.get("max_modes", 10)), ORDER_PER_PEAK * int(n_peaks)), top)
 
 
 def _half_period_rows(fs: float, low_hz: float) -> int:

@@ -25,7 +25,7 @@ from sysid_node import params as P
 from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
-from sysid_node.low_band import LowBand
+from sysid_node.low_band import LowBand, max_split_hz
 from sysid_node.records import (
     STATUS_NAMES,
     EstimateRecord,
@@ -113,6 +113,7 @@ class Pipeline:
         #: the automatic band's split (core/band.split_frequency, NaN: none): the modes below
         #: it come from a second estimator (low_band.py)
         self.split_hz = math.nan
+        self._split_peaks = 0  # clear structure peaks below the split
         self.low_band: LowBand | None = None
         self._absorbing = False
         self.estimator_band_max = math.inf
@@ -171,7 +172,7 @@ class Pipeline:
                 and math.isfinite(self.band_edge)):
             return None
         return LowBand(self._core[0], self.values, *self._layout, self.identification_rate,
-                       self.split_hz, self.band_low)
+                       self.split_hz, self.band_low, self._split_peaks)
 
     def _tracker_kwargs(self, cls: type) -> dict[str, Any]:
         """Tracking gates of the ModeTracker from the parameters."""
@@ -182,6 +183,7 @@ class Pipeline:
             "lost_timeout_s": v["tracking_lost_timeout"],
             "drop_timeout_s": v["tracking_drop_timeout"],
             "max_tracked": v["max_modes"],
+            "report_hits": v["tracking_median_count"],
             "consecutive": True,  # tracking_confirm_count: successive matches
         }
 
@@ -444,7 +446,8 @@ class Pipeline:
         fs_id = self.sample_rate / P.decimation_factor(self.values, self.sample_rate,
                                                        choice.fmax_hz)
         capped = P.window_capped(self.values, *self._layout, fs_id, choice.low_hz)
-        self.split_hz = split_frequency(choice) if capped else math.nan
+        top = max_split_hz(self.values, *self._layout, fs_id, choice.low_hz)
+        self._set_split(split_frequency(choice, top) if capped else math.nan, choice)
         self._next_check_ns = int(self._raw[-1].stamps_ns[-1]) + round(BAND_CHECK_PERIOD_S * 1e9)
         self._widen_votes = 0
         self._split_votes = 0
@@ -494,12 +497,20 @@ class Pipeline:
             return
         from sysid_node.core.band import split_frequency
 
-        new, cur = split_frequency(self._band_from_raw()), self.split_hz
+        top = max_split_hz(self.values, *self._layout, self.identification_rate, self.band_low)
+        choice = self._band_from_raw()
+        new, cur = split_frequency(choice, top), self.split_hz
         up = math.isfinite(new) and not (math.isfinite(cur) and new < SPLIT_MOVE * cur)
         if not self._voted("_split_votes", up):
             return
-        self.split_hz = new
+        self._set_split(new, choice)
         self._start_low_band()
+
+    def _set_split(self, split_hz: float, choice) -> None:
+        """The split [Hz] and the count of the choice's clear peaks below it (the low group's
+        model order, ``params.effective_max_order``)."""
+        self.split_hz = split_hz
+        self._split_peaks = sum(1 for p in choice.peaks_hz if p < split_hz)
 
     def _recheck_band(self, last_ns: int) -> None:
         """Recheck the band on the recent raw data; widen it (rebuild the estimator from those
@@ -614,21 +625,13 @@ class Pipeline:
         self._update(_concat(parts))
 
     def _absorb_only(self) -> None:
-        """Feed the held samples without realizing a model (catching up): the realization
-        interval is lifted for the call, and the next realization is due at once after it."""
-        est = self.estimator
-        keep = est.realization_interval
-        est.realization_interval = 1 << 62
+        """Feed the held samples without realizing a model (catching up;
+        ``RecursiveDSRA.absorb``): the next realization is due at once after them."""
         self._absorbing = True
         try:
             self._flush_pending()
-            if hasattr(est, "flush"):
-                est.flush()
         finally:
             self._absorbing = False
-            est.realization_interval = keep
-            if getattr(est, "_since_realization", 0) >= keep:
-                est._since_realization = keep - 1
 
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
@@ -653,7 +656,11 @@ class Pipeline:
         low = self.low_band
         if low is not None:
             low.update(c.u, c.y, not self._absorbing, (s0 + len(c)) / self.identification_rate)
-        models = est.update(c.u, c.y) or []
+        if self._absorbing:
+            est.absorb(c.u, c.y)
+            models = []
+        else:
+            models = est.update(c.u, c.y) or []
         for mdl in models:
             t_data = float(getattr(mdl, "time_s", math.nan))
             k = round(t_data * self.identification_rate) - s0 - 1
@@ -807,6 +814,7 @@ class Pipeline:
                 (("confirm_hits", "confirm_count"), "tracking_confirm_count"),
                 (("lost_timeout_s", "lost_timeout"), "tracking_lost_timeout"),
                 (("drop_timeout_s",), "tracking_drop_timeout"),
+                (("report_hits",), "tracking_median_count"),
             ):
                 for n in names:
                     if hasattr(self.tracker, n):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy import signal
 from sysid_node.core.band import BandChoice, split_frequency, structure_band
+from sysid_node.low_band import max_split_hz
 from sysid_node.suite import T0_NS as T0
 from sysid_node.suite import run_output_only
 
@@ -101,3 +102,21 @@ def test_chunking_does_not_change_the_numbers_with_a_split(wide_record):
         assert ra.stamp_ns == rb.stamp_ns
         np.testing.assert_array_equal([m.frequency_hz for m in ra.modes],
                                       [m.frequency_hz for m in rb.modes])
+
+
+def test_the_split_goes_down_the_gap_to_where_the_low_window_fits():
+    c = _choice(2.5, (3.0, 4.2, 12.0, 80.0, 120.0, 190.0), 300.0)
+    assert split_frequency(c, max_hz=20.0) == pytest.approx(20.0)
+    # never closer than sqrt(SPLIT_GAP) to the peak below the gap
+    assert split_frequency(c, max_hz=10.0) == pytest.approx(12.0 * math.sqrt(2.0))
+    assert split_frequency(c, max_hz=1e3) == pytest.approx(math.sqrt(12.0 * 80.0))
+
+
+def test_max_split_is_where_the_low_window_spans_the_lowest_peak():
+    v = P.defaults()
+    # 5 outputs: 28 block rows; 256 Hz / 7 = 36.6 Hz spans half a period of 0.75 Hz in 25
+    top = max_split_hz(v, 5, 0, 256.0, 0.75)
+    assert top == pytest.approx(256.0 / 7 / 3)
+    rate = 3.0 * top
+    assert not P.window_capped(v, 5, 0, rate, 0.75)
+    assert math.isinf(max_split_hz({**v, "block_rows": 20}, 5, 0, 256.0, 0.75))

@@ -176,7 +176,7 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     return BandChoice(min(EDGE_MARGIN * top, full), top, df, low_hz, peaks)
 
 
-def split_frequency(choice: BandChoice) -> float:
+def split_frequency(choice: BandChoice, max_hz: float = math.inf) -> float:
     """Where a wide band splits in two [Hz], NaN for no split.
 
     One realization cannot serve modes two decades apart: its Hankel window (block rows over
@@ -187,7 +187,9 @@ def split_frequency(choice: BandChoice) -> float:
     ``SPLIT_MIN_BINS`` bins) between successive clear peaks (not the leakage or roll-off maxima
     beside a strong one; any bin with structure among the first, which have too few bins below
     them to stand out): the group below is identified by an estimator of its own at a rate of
-    its own (``low_band.py``)."""
+    its own (``low_band.py``). When that group's window could span its lowest peak only with
+    the split lower, at most ``max_hz`` (``low_band.max_split_hz``), the split goes down the gap
+    to there, but no closer than the gap's ``sqrt(SPLIT_GAP)`` to the peak below it."""
     low, edge = choice.low_hz, choice.fmax_hz
     if not (choice.found and math.isfinite(low) and low > 0 and edge > SPLIT_SPAN * low):
         return math.nan
@@ -201,7 +203,8 @@ def split_frequency(choice: BandChoice) -> float:
     k = int(np.argmax(gaps))
     if gaps[k] < SPLIT_GAP:
         return math.nan
-    return float(math.sqrt(points[k] * points[k + 1]))
+    middle = math.sqrt(points[k] * points[k + 1])
+    return float(min(middle, max(max_hz, points[k] * math.sqrt(SPLIT_GAP))))
 
 
 def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float) -> float:

@@ -211,6 +211,7 @@ class RecursiveDSRA:
         self._sy = self._fixed_sy
         self._scale: np.ndarray | None = None  # [su, sy] once both are known
         self._since_realization = 0
+        self._absorbing = False  # absorb(): accumulate without realizing
         self._theta1: np.ndarray | None = None
         self._pe_ms = np.full(self.n_outputs, np.nan)
         self._pe_short = np.full(self.n_outputs, np.nan)
@@ -332,6 +333,17 @@ class RecursiveDSRA:
             return self._flush()
         return []
 
+    def absorb(self, u_block: np.ndarray | None, y_block: np.ndarray) -> None:
+        """Absorb a block as :meth:`update` does, without realizing a model (catching up on
+        old data; a new estimator fed the recent past): the next realization is due at the
+        next sample."""
+        self._absorbing = True
+        try:
+            self.update(u_block, y_block)
+            self.flush()
+        finally:
+            self._absorbing = False
+
     def flush(self) -> None:
         """Absorb the queued samples now (reads of the state do this themselves)."""
         if self._queued:
@@ -379,10 +391,15 @@ class RecursiveDSRA:
         pos = 0
         while pos < data.shape[0]:
             take = min(data.shape[0] - pos, self.realization_interval - self._since_realization)
+            if self._absorbing:  # absorb(): no realization, the next one due at once
+                take = data.shape[0] - pos
             self._accumulate(data[pos : pos + take])
             pos += take
             self._since_realization += take
-            if self._since_realization >= self.realization_interval:
+            if self._absorbing:
+                self._since_realization = min(self._since_realization,
+                                              self.realization_interval - 1)
+            elif self._since_realization >= self.realization_interval:
                 self._since_realization = 0
                 mdl = self._realize(pos - data.shape[0] + end_offset)
                 if mdl is not None:

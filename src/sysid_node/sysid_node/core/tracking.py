@@ -10,7 +10,9 @@ Tentative tracks are confirmed after ``confirm_hits`` hits, in successive update
 tests of a realization now and then, a physical one in a row); a track not seen for
 ``lost_timeout_s`` is lost (and may be re-acquired with the same id), and dropped after
 ``drop_timeout_s``. Tentative tracks that miss for ``lost_timeout_s`` are discarded. Reported
-values are exponentially smoothed over the hits; the standard deviations combine the
+frequency and damping are the medians of the last ``report_hits`` raw estimates (robust to a
+stray realization: a burst in the data), with ``report_hits`` 1 the latest one exponentially
+smoothed over the hits (``smoothing``); the standard deviations combine the
 delta-method value of the latest realization with the empirical spread of the recent raw
 estimates.
 
@@ -78,7 +80,8 @@ class ModeTracker:
     bound a match, measured from the median of the last ``reference_hits`` raw estimates of the
     track; ``smoothing`` in (0, 1] is the weight of a new estimate (1 = no smoothing);
     ``max_tracked`` (None = no limit) bounds the number of ``tracked`` modes; ``consecutive``
-    counts only hits in successive updates towards ``confirm_hits`` (a miss restarts the count).
+    counts only hits in successive updates towards ``confirm_hits`` (a miss restarts the count);
+    ``report_hits`` > 1 reports the medians of that many recent estimates.
     """
 
     def __init__(
@@ -94,6 +97,7 @@ class ModeTracker:
         reference_hits: int = 5,
         max_tracked: int | None = None,
         consecutive: bool = False,
+        report_hits: int = 1,
     ) -> None:
         if not 0.0 < smoothing <= 1.0:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
@@ -110,6 +114,9 @@ class ModeTracker:
         self.reference_hits = max(int(reference_hits), 1)
         self.max_tracked = max_tracked
         self.consecutive = bool(consecutive)
+        if not 1 <= report_hits <= history:
+            raise ValueError(f"report_hits must be in [1, history={history}], got {report_hits}")
+        self.report_hits = int(report_hits)
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
 
@@ -225,9 +232,13 @@ class ModeTracker:
         tr.streak += 1
         tr.last_seen = t
         tr.ranks.append(md.rank_key)
-        a = 1.0 if first else self.smoothing
-        f = tr.mode.frequency_hz + a * (md.frequency_hz - tr.mode.frequency_hz)
-        z = tr.mode.damping_ratio + a * (md.damping_ratio - tr.mode.damping_ratio)
+        if self.report_hits > 1:  # robust to a stray realization (a burst in the data)
+            h = np.array(list(tr.history)[-self.report_hits :])
+            f, z = float(np.median(h[:, 0])), float(np.median(h[:, 1]))
+        else:
+            a = 1.0 if first else self.smoothing
+            f = tr.mode.frequency_hz + a * (md.frequency_hz - tr.mode.frequency_hz)
+            z = tr.mode.damping_ratio + a * (md.damping_ratio - tr.mode.damping_ratio)
         f_std, z_std = md.frequency_std_hz, md.damping_std
         if len(tr.history) >= 3:
             h = np.array(tr.history)
