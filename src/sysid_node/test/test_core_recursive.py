@@ -85,13 +85,19 @@ def test_recursive_with_unit_lambda_agrees_with_batch(cobra_data):
     assert np.allclose(batch.singular_values, rec.singular_values, rtol=1e-6)
 
 
-def test_block_length_does_not_change_the_estimate():
-    rng = np.random.default_rng(5)
+def _paper_pair(seed: int, n: int):
+    """The paper example's first system (SISO, 100 Hz, 5 % noise) for ``n`` samples and two
+    identical estimators for it."""
+    rng = np.random.default_rng(seed)
     before, _ = paper_example_systems()
-    u = white(600, 1, rng)
+    u = white(n, 1, rng)
     y = add_output_noise(simulate(before, u, 100.0), 0.05, rng)
     kw = dict(fs=100.0, block_rows=10, max_order=4, realization_interval=50, band=(0, 10))
-    a, b = RecursiveDSRA(1, 1, **kw), RecursiveDSRA(1, 1, **kw)
+    return u, y, RecursiveDSRA(1, 1, **kw), RecursiveDSRA(1, 1, **kw)
+
+
+def test_block_length_does_not_change_the_estimate():
+    u, y, a, b = _paper_pair(5, 600)
     ma = _feed(a, u, y, block=1)
     mb = _feed(b, u, y, block=137)
     assert a.samples_seen == b.samples_seen == 600
@@ -105,12 +111,7 @@ def test_absorb_accumulates_without_realizing_and_the_next_sample_realizes():
     a new estimator fed the recent past), and that model is the one update() of the same
     samples gives (the information differs a little: realizations drive the outlier gate's
     predictor and the change detection)."""
-    rng = np.random.default_rng(7)
-    before, _ = paper_example_systems()
-    u = white(3001, 1, rng)
-    y = add_output_noise(simulate(before, u, 100.0), 0.05, rng)
-    kw = dict(fs=100.0, block_rows=10, max_order=4, realization_interval=50, band=(0, 10))
-    a, b = RecursiveDSRA(1, 1, **kw), RecursiveDSRA(1, 1, **kw)
+    u, y, a, b = _paper_pair(7, 3001)
     a.absorb(u[:3000], y[:3000])
     mb = _feed(b, u[:3000], y[:3000], block=137)
     assert a.realization_count == 0 and len(mb) == b.realization_count > 0
