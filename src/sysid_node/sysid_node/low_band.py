@@ -39,7 +39,7 @@ def max_split_hz(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: floa
     1/RATE_PER_SPLIT of it. Infinite with configured block rows."""
     if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
         return math.inf
-    cap = P.MAX_AUTO_WINDOW_ROWS // (2 * (n_inputs + n_outputs))
+    cap = P.max_auto_rows(n_outputs, n_inputs)
     factor = min(MAX_FACTOR, max(1, math.ceil(fs / (2.0 * low_hz * cap) - 1e-9)))
     return fs / factor / RATE_PER_SPLIT
 

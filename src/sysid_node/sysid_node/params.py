@@ -302,7 +302,7 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     width = 2 * (n_inputs + n_outputs)
     i = max(need, 2, min(35, round(AUTO_WINDOW_ROWS / width)))
     if math.isfinite(low_hz) and low_hz > 0 and math.isfinite(fs) and fs > 0:
-        i = max(i, min(_half_period_rows(fs, low_hz), MAX_AUTO_WINDOW_ROWS // width))
+        i = max(i, min(_half_period_rows(fs, low_hz), max_auto_rows(n_outputs, n_inputs)))
     return int(min(i, SPECS["block_rows"].hi))
 
 
@@ -322,6 +322,11 @@ def effective_max_order(values: dict[str, Any], n_peaks: int, top: int) -> int:
     return min(2 * max(int(values.get("max_modes", 10)), ORDER_PER_PEAK * int(n_peaks)), top)
 
 
+def max_auto_rows(n_outputs: int, n_inputs: int) -> int:
+    """The most automatic block rows: MAX_AUTO_WINDOW_ROWS in the stacked window 2 i (m + l)."""
+    return MAX_AUTO_WINDOW_ROWS // (2 * (n_inputs + n_outputs))
+
+
 def _half_period_rows(fs: float, low_hz: float) -> int:
     """Block rows for the Hankel window to span half a period of ``low_hz`` at ``fs``."""
     return math.ceil(fs / (2.0 * low_hz) - 1e-9)
@@ -333,7 +338,7 @@ def window_capped(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: flo
     within MAX_AUTO_WINDOW_ROWS (``effective_block_rows``; False with configured block rows)."""
     if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
         return False
-    return _half_period_rows(fs, low_hz) > MAX_AUTO_WINDOW_ROWS // (2 * (n_inputs + n_outputs))
+    return _half_period_rows(fs, low_hz) > max_auto_rows(n_outputs, n_inputs)
 
 
 def decimation_factor(values: dict[str, Any], fs: float, auto_edge: float = math.nan) -> int:
