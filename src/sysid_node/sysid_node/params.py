@@ -75,7 +75,9 @@ PARAMS: tuple[ParamSpec, ...] = (
        "enough to span half a period of its lowest peak (0.35 s until the band is chosen; up "
        f"to {MAX_AUTO_WINDOW_ROWS} rows)", "structural", lo=0, hi=200),
     _p("max_order", int, 0,
-       "Model order of the realization; 0 = the estimator default (2 x max_modes) [-]",
+       "Model order of the realization; 0 = auto: 2 x max_modes, and with a configured band "
+       "(freq_max > 0) grown to 2 x the larger of max_modes and twice the confirmed mode "
+       "tracks (counted every 2 s; it only grows) [-]",
        "structural", lo=0, hi=400),
     # -- estimator (live) --
     _p("forgetting_factor", float, 0.0,
@@ -314,8 +316,9 @@ ORDER_PER_PEAK = 2
 
 def effective_max_order(values: dict[str, Any], n_peaks: int, top: int) -> int:
     """``max_order`` when > 0; else 2 x the larger of ``max_modes`` and ORDER_PER_PEAK x
-    ``n_peaks`` (the clear structure peaks of the estimator's band, ``core/band.py``; 0 while
-    unknown); at most ``top`` (the largest order the block rows allow)."""
+    ``n_peaks`` (the modes of the estimator's band: the automatic band's low group counts its
+    clear structure peaks, ``core/band.py``, a configured band its confirmed mode tracks; 0
+    while unknown); at most ``top`` (the largest order the block rows allow)."""
     k = int(values.get("max_order", 0))
     if k > 0:
         return min(k, top)

@@ -110,6 +110,9 @@ class Pipeline:
         self.band_edge = math.nan
         #: the automatic band's lowest peak [Hz] (NaN until chosen): the block rows span it
         self.band_low = math.nan
+        #: a configured band with the automatic order: the modes its order has room for (0:
+        #: 2 max_modes; ``_recount_modes``)
+        self._band_modes = 0
         #: the automatic band's split (core/band.split_frequency, NaN: none): the modes below
         #: it come from a second estimator (low_band.py)
         self.split_hz = math.nan
@@ -137,13 +140,15 @@ class Pipeline:
         self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs, fs, low)
         top = n_outputs * (self.block_rows - 1)  # largest order the Hankel rows allow
         max_order = min(v["max_order"], top) if v["max_order"] else None
+        if max_order is None and self._band_modes:  # a configured band's modes
+            max_order = P.effective_max_order(v, self._band_modes, top)
         self.estimator = RecursiveDSRA(
             n_outputs,
             n_inputs=n_inputs,
             fs=fs,
             block_rows=self.block_rows,
             max_order=max_order,
-            forgetting_factor=P.effective_lambda(v, fs, self.band_low),
+            forgetting_factor=self._lambda(fs),
             realization_interval=self._realization_interval(),
             band=(fmin, fmax),
             damping_bounds=(v["damping_min"], v["damping_max"]),
@@ -162,7 +167,7 @@ class Pipeline:
             rate += f" (decimated by {self.decimator.factor} from {self.sample_rate:g} Hz)"
         self.log(
             f"estimator started: {n_outputs} output(s), {kind}, {rate}, block rows "
-            f"{self.block_rows}, lambda {P.effective_lambda(v, fs, self.band_low):.5f}, band "
+            f"{self.block_rows}, lambda {self._lambda(fs):.5f}, band "
             f"{fmin:g}-{fmax:g} Hz" + (f"; {self.low_band.describe()}" if self.low_band else "")
         )
 
@@ -220,10 +225,15 @@ class Pipeline:
         identification rate until it is chosen)."""
         return P.effective_band(self.values, self.identification_rate, self.band_edge)
 
+    def _lambda(self, fs: float) -> float:
+        """lambda at ``fs`` (``params.effective_lambda``; memory_periods of the lowest peak
+        with the automatic band only)."""
+        return P.effective_lambda(self.values, fs, self.band_low if self.auto_band else math.nan)
+
     @property
     def forgetting_factor(self) -> float:
         """lambda per identification sample."""
-        return P.effective_lambda(self.values, self.identification_rate, self.band_low)
+        return self._lambda(self.identification_rate)
 
     @property
     def counters(self) -> dict[str, int]:
@@ -368,11 +378,15 @@ class Pipeline:
             else:
                 self.band_edge = math.nan
                 self.band_low = math.nan
+                self._band_modes = 0  # a configured band's modes are counted again
                 self.split_hz = math.nan
                 self._next_check_ns = None
-        if not self.auto_band:
+        v = self.values
+        if not self.auto_band and v["max_order"] > 0:
             return self._feed_estimator(c, realize)
         self._layout = (ny, nu)
+        if not self.auto_band and self._next_check_ns is None:
+            self._next_check_ns = int(c.stamps_ns[0]) + round(BAND_CHECK_PERIOD_S * 1e9)
         records: list[EstimateRecord] = []
         while len(c):  # cut at the sample a check is due: chunking changes nothing
             k = self._samples_to_check(c)
@@ -380,12 +394,42 @@ class Pipeline:
             self._keep_raw(part)
             records += self._feed_estimator(part, realize)
             last = int(part.stamps_ns[-1])
-            if not math.isfinite(self.band_edge):
+            if self._probing:
                 if self._raw_count() >= self._probe_samples():
                     self._choose_band()
             elif self._next_check_ns is not None and last >= self._next_check_ns:
-                self._recheck_band(last)
+                self._recheck_band(last) if self.auto_band else self._recount_modes(last)
         return records
+
+    @property
+    def _probing(self) -> bool:
+        """The automatic band is not chosen yet (before BAND_PROBE_S of data)."""
+        return self.auto_band and not math.isfinite(self.band_edge)
+
+    # ---- configured band (freq_max > 0) with the automatic order (max_order 0) ----
+    def _recount_modes(self, last_ns: int) -> None:
+        """Every BAND_CHECK_PERIOD_S: the confirmed mode tracks (tracked, ranked out or lost
+        for less than the drop timeout: modes seen consistently over many realizations, even
+        those that drop out of single ones). When the order has no room for them as the
+        automatic band's low group would size it (``params.effective_max_order``: twice the
+        larger of max_modes and ORDER_PER_PEAK x the modes), on two checks in a row, the
+        estimator is rebuilt with that order from the recent raw data, keeping the tracks. A
+        band of many close modes (a frame's eight below 10 Hz) fills a realization of
+        2 max_modes: its weakest modes drop out of it for seconds at a time. The order only
+        grows (a quiet spell does not take modes out of the realization)."""
+        self._next_check_ns = last_ns + round(BAND_CHECK_PERIOD_S * 1e9)
+        if self.estimator is None or self.tracker is None:
+            return
+        k = sum(1 for tr in self.tracker.tracks if getattr(tr, "confirmed", False))
+        top = self._layout[0] * (self.block_rows - 1)
+        order = P.effective_max_order(self.values, k, top)
+        if not self._voted("_split_votes", order > self.estimator.max_order):
+            return
+        fmin, fmax = self.band
+        self.log(f"band {fmin:g}-{fmax:g} Hz holds {k} confirmed modes: model order "
+                 f"{self.estimator.max_order} -> {order}")
+        self._band_modes = k
+        self._rebuild_from_raw()
 
     # ---- automatic band (freq_max 0; core/band.py) ----
     def _probe_samples(self) -> int:
@@ -394,7 +438,7 @@ class Pipeline:
     def _samples_to_check(self, c: Chunk) -> int:
         """Samples of ``c`` up to the one at which the next band check is due (all of them
         when none is due within ``c``)."""
-        if not math.isfinite(self.band_edge):
+        if self._probing:
             return int(min(max(self._probe_samples() - self._raw_count(), 1), len(c)))
         if self._next_check_ns is None:
             return len(c)
@@ -827,7 +871,7 @@ class Pipeline:
         if "spurious_rejection" in changes and hasattr(est, "stabilize"):
             est.stabilize = bool(v["spurious_rejection"])
         if {"forgetting_factor", "memory_time_constant", "memory_periods"} & changes.keys():
-            est.set_forgetting_factor(P.effective_lambda(v, fs, self.band_low))
+            est.set_forgetting_factor(self._lambda(fs))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
             est.set_band(P.effective_band(v, fs, self.band_edge),
                          (v["damping_min"], v["damping_max"]))

@@ -1,5 +1,6 @@
 """A wide automatic band splits in two (issue #10): ``core.band.split_frequency``,
-``params.window_capped`` and the pipeline's second estimator (``low_band.py``)."""
+``params.window_capped`` and the pipeline's second estimator (``low_band.py``); a configured
+band's order makes room for its confirmed modes as the low group's does for its peaks."""
 
 from __future__ import annotations
 
@@ -120,3 +121,33 @@ def test_max_split_is_where_the_low_window_spans_the_lowest_peak():
     rate = 3.0 * top
     assert not P.window_capped(v, 5, 0, rate, 0.75)
     assert math.isinf(max_split_hz({**v, "block_rows": 20}, 5, 0, 256.0, 0.75))
+
+
+def test_a_configured_band_makes_room_in_its_order_for_its_modes(wide_record):
+    """freq_max 8 Hz holds four modes (2.2, 2.6, 4.1, 5.3 Hz); max_modes 4 gives an order of 8:
+    the order grows to 2 x max(max_modes, 2 x confirmed modes), logged, from the raw data;
+    block rows and memory stay (memory_periods is the automatic band's)."""
+    y = wide_record[: int(18 * FS)]
+    logs: list[str] = []
+    params = {"freq_max": 8.0, "max_modes": 4}
+    pl, recs = run_output_only(y, FS, params, 40, logs.append)
+    grown = [m for m in logs if "confirmed modes" in m]
+    assert grown, logs
+    assert pl._band_modes >= 3
+    assert pl.estimator.max_order == 2 * 2 * pl._band_modes > 2 * 4
+    assert pl.block_rows == P.effective_block_rows(pl.values, 2, 0)
+    assert pl.forgetting_factor == pytest.approx(math.exp(-1.0 / pl.identification_rate))
+    _, other = run_output_only(y, FS, params, 7)
+    assert [r.stamp_ns for r in other] == [r.stamp_ns for r in recs]
+    np.testing.assert_allclose([m.frequency_hz for m in other[-1].modes],
+                               [m.frequency_hz for m in recs[-1].modes], rtol=1e-9)
+
+
+def test_an_order_with_room_or_a_configured_one_is_left_as_it_is(wide_record):
+    y = wide_record[: int(8 * FS)]
+    for params in ({"freq_max": 8.0, "max_modes": 10},
+                   {"freq_max": 8.0, "max_modes": 4, "max_order": 8}):
+        logs: list[str] = []
+        pl, _ = run_output_only(y, FS, params, 40, logs.append)
+        assert not any("confirmed modes" in m for m in logs), (params, logs)
+        assert pl.estimator.max_order == (params.get("max_order") or 20)
