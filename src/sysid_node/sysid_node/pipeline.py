@@ -124,6 +124,7 @@ class Pipeline:
         self._next_check_ns: int | None = None
         self._widen_votes = 0
         self._split_votes = 0
+        self._order_votes = 0  # a configured band's order (``_recount_modes``)
 
     def _build_estimator(self, n_outputs: int, n_inputs: int, keep_tracks: bool = False) -> None:
         RecursiveDSRA, ModeTracker = self._core
@@ -148,7 +149,7 @@ class Pipeline:
             fs=fs,
             block_rows=self.block_rows,
             max_order=max_order,
-            forgetting_factor=self._lambda(fs),
+            forgetting_factor=P.effective_lambda(v, fs, self.band_low),
             realization_interval=self._realization_interval(),
             band=(fmin, fmax),
             damping_bounds=(v["damping_min"], v["damping_max"]),
@@ -167,7 +168,7 @@ class Pipeline:
             rate += f" (decimated by {self.decimator.factor} from {self.sample_rate:g} Hz)"
         self.log(
             f"estimator started: {n_outputs} output(s), {kind}, {rate}, block rows "
-            f"{self.block_rows}, lambda {self._lambda(fs):.5f}, band "
+            f"{self.block_rows}, lambda {P.effective_lambda(v, fs, self.band_low):.5f}, band "
             f"{fmin:g}-{fmax:g} Hz" + (f"; {self.low_band.describe()}" if self.low_band else "")
         )
 
@@ -225,15 +226,10 @@ class Pipeline:
         identification rate until it is chosen)."""
         return P.effective_band(self.values, self.identification_rate, self.band_edge)
 
-    def _lambda(self, fs: float) -> float:
-        """lambda at ``fs`` (``params.effective_lambda``; memory_periods of the lowest peak
-        with the automatic band only)."""
-        return P.effective_lambda(self.values, fs, self.band_low if self.auto_band else math.nan)
-
     @property
     def forgetting_factor(self) -> float:
         """lambda per identification sample."""
-        return self._lambda(self.identification_rate)
+        return P.effective_lambda(self.values, self.identification_rate, self.band_low)
 
     @property
     def counters(self) -> dict[str, int]:
@@ -423,7 +419,7 @@ class Pipeline:
         k = sum(1 for tr in self.tracker.tracks if getattr(tr, "confirmed", False))
         top = self._layout[0] * (self.block_rows - 1)
         order = P.effective_max_order(self.values, k, top)
-        if not self._voted("_split_votes", order > self.estimator.max_order):
+        if not self._voted("_order_votes", order > self.estimator.max_order):
             return
         fmin, fmax = self.band
         self.log(f"band {fmin:g}-{fmax:g} Hz holds {k} confirmed modes: model order "
@@ -871,7 +867,7 @@ class Pipeline:
         if "spurious_rejection" in changes and hasattr(est, "stabilize"):
             est.stabilize = bool(v["spurious_rejection"])
         if {"forgetting_factor", "memory_time_constant", "memory_periods"} & changes.keys():
-            est.set_forgetting_factor(self._lambda(fs))
+            est.set_forgetting_factor(P.effective_lambda(v, fs, self.band_low))
         if {"freq_min", "freq_max", "damping_min", "damping_max"} & changes.keys():
             est.set_band(P.effective_band(v, fs, self.band_edge),
                          (v["damping_min"], v["damping_max"]))
