@@ -7,8 +7,10 @@ vocabulary changes the structure that is re-fitted (:class:`ModelSpec`):
 * ``missing_mode``: two more states (one more mode) and no band restriction;
 * ``periodic_disturbance``: additive harmonic regressors cos/sin(k phi(t)), phi = 2 pi int f dt,
   f the measured rotating speed [Hz] (N/rev) or a fixed frequency;
-* ``parameter_varying``: local models identified at operating points of a scheduling signal
-  theta and interpolated linearly between them, the LPV model (2) of Sec. IV;
+* ``parameter_varying``: with an input, every mode's frequency and damping affine in a
+  scheduling signal theta (:mod:`.lpv_affine`: theta may keep moving); ``form=local``, or
+  output-only data: local models identified at operating points of theta and interpolated
+  linearly between them, the LPV model (2) of Sec. IV;
 * ``input_delay``: the input delayed by d samples (fractional d: linear interpolation between
   samples, a transport delay shorter than the sample period);
 * ``nonlinear_stiffness``: a cubic stiffness force q = z^3 on a structural coordinate z: an
@@ -64,6 +66,9 @@ class ModelSpec:
     harmonics: list[dict] = field(default_factory=list)
     lpv_signal: str | None = None
     lpv_points: int = 3
+    #: "affine": poles move continuously with the signal (lpv_affine; needs an input);
+    #: "local": local models at operating points (Sec. IV); "auto": affine when there is an input
+    lpv_form: str = "auto"
     cubic_channel: int | None = None
     cubic_integrals: int = 0  # the spring's coordinate: output (0), its integral (1) or double (2)
     cubic_input: int = 0  # the input the spring force acts with (Duffing: where the input acts)
@@ -104,6 +109,9 @@ class ModelSpec:
                 raise ValidationError("parameter_varying needs signal=TOPIC")
             s.lpv_signal = str(p["signal"])
             s.lpv_points = int(p.get("points", s.lpv_points))
+            s.lpv_form = str(p.get("form", s.lpv_form))
+            if s.lpv_form not in ("auto", "affine", "local"):
+                raise ValidationError("parameter_varying: form must be auto, affine or local")
         elif effect == "input_delay":
             if "samples" in p:
                 s.delay = float(p["samples"])

@@ -114,6 +114,10 @@ def rank(hyps: list[Hypothesis]) -> list[Hypothesis]:
 def _refit(
     ctx: Context, spec: ModelSpec, effect: str, params: dict
 ) -> tuple[FittedModel | None, str]:
+    done = ctx.fitted.get((effect, params.get("signal")))
+    fresh = set(params) <= {"signal", "form"} and params.get("form", "auto") != "local"
+    if done is not None and fresh:  # the affine structure the gate fitted already
+        return done, ""
     try:
         fm = fit(spec.with_effect(effect, params), ctx.data, ctx.split, like=ctx.current)
     except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError) as err:
@@ -237,6 +241,19 @@ def _parameters(h: Hypothesis, ctx: Context, fm: FittedModel, params: dict) -> t
         }
     elif eff == "missing_mode":
         return _missing_mode_parameters(h, ctx, fm)
+    elif eff == "parameter_varying" and fm.affine is not None:
+        am = fm.affine
+        slopes = am.frequency_slopes_hz()
+        if slopes.size:
+            k = int(np.argmax(np.abs(slopes)))
+            h.parameters.update(
+                form="affine",
+                reference=am.theta_mean,
+                mode_frequency_hz=float(am.frequencies_hz()[k]),
+                frequency_slope_hz_per_unit=float(slopes[k]),
+                mode_frequencies_hz=[float(v) for v in am.frequencies_hz()],
+                frequency_slopes_hz_per_unit=[float(v) for v in slopes],
+            )
     elif eff == "parameter_varying" and fm.lpv is not None:
         fr = fm.lpv.frequencies(data.fs)
         if fr.ndim == 2 and fr.shape[1]:

@@ -31,6 +31,7 @@ from ..core.model import IdentifiedModel
 from ..core.realization import kalman_gain, project
 from .augment import LpvModel, ModelSpec, operating_points, regressors
 from .data import ValidationData, ValidationError
+from .lpv_affine import AffineModal, fit_affine
 from .residuals import lstsq
 from .simulation import (
     LinearDynamics,
@@ -47,6 +48,9 @@ from .simulation import (
     spring_inputs,
 )
 from .split import Split
+
+#: The schedule name that stands for time itself (the placebo of the parameter_varying gate).
+TIME_SIGNAL = "(time)"
 
 #: Residual evaluations of each output-error refinement of the poles.
 REFINE_EVALUATIONS = 30
@@ -170,6 +174,7 @@ class FittedModel:
     controller: np.ndarray | None = None  # least-squares controller (feedback)
     n_outputs: int = 1
     lpv: LpvModel | None = None
+    affine: AffineModal | None = None  # parameter_varying, continuous schedule (lpv_affine)
     cubic_prior: FittedModel | None = None  # model whose one-step prediction feeds the cubic
     cubic_c: np.ndarray | None = None  # row c_z of the spring's coordinate z = c_z x
     cubic_scale: float = 1.0  # RMS of the spring coordinate on the data (q = (z / scale)^3)
@@ -183,6 +188,8 @@ class FittedModel:
         """Spectral radius of the free-run dynamics (the plant's A; < 1: bounded free run)."""
         if self.locals:
             return float(max(spectral_radius(m.A) for _, m in self.locals))
+        if self.affine is not None:
+            return self.affine.radius
         if self.spec.feedback and self.model is not None:
             return spectral_radius(self.plant()[0])
         return spectral_radius(self.model.A) if self.model is not None else np.inf
@@ -190,6 +197,8 @@ class FittedModel:
     @property
     def predictor_radius(self) -> float:
         """Spectral radius of the one-step predictor A - K C (< 1: bounded prediction)."""
+        if self.affine is not None:  # free run plus an AR (FIR in past errors) correction
+            return self.affine.radius
         ms = [m for _, m in self.locals] if self.locals else [self.model]
         return float(max(spectral_radius(m.A - m.K @ m.C) for m in ms))
 
@@ -233,7 +242,14 @@ class FittedModel:
             return np.zeros((data.n, self.n_outputs))
         return phi @ self.theta
 
+    def schedule(self, data: ValidationData) -> np.ndarray:
+        """The scheduling signal on the samples (time for :data:`TIME_SIGNAL`)."""
+        name = self.spec.lpv_signal
+        return data.t if name == TIME_SIGNAL else data.signals[name]
+
     def _core_predict(self, data: ValidationData, yc: np.ndarray, ue: np.ndarray) -> np.ndarray:
+        if self.affine is not None:
+            return self.affine.predict(self.schedule(data), ue, yc)
         if self.spec.feedback:
             r = self.reference(yc, ue)
             return _predictor(self.model, np.hstack([yc, ue]), r)[:, : self.n_outputs]
@@ -276,6 +292,8 @@ class FittedModel:
                 y, _ = simulate_discrete(a, b, c, d, u)
             elif self.locals:
                 y = self.lpv.run(data.signals[self.spec.lpv_signal], u, None)
+            elif self.affine is not None:
+                y = self.affine.simulate(self.schedule(data), u)
             else:
                 m = self.model
                 if self.spec.cubic_channel is None:
@@ -362,6 +380,7 @@ def _plain(fm: FittedModel | None) -> bool:
         fm is not None
         and fm.model is not None
         and not fm.locals
+        and fm.affine is None
         and not sp.feedback
         and sp.cubic_channel is None
     )
@@ -380,6 +399,8 @@ def fit(
     if spec.order is None:
         raise ValidationError("internal: fit() needs an order (see baseline.select_baseline)")
     order = spec.order + spec.extra_order
+    if spec.lpv_signal is not None and data.n_inputs and spec.lpv_form != "local":
+        return _fit_affine(spec, data, split, like)
     phi = regressors(spec, data)
     fm = FittedModel(spec, order, n_outputs=l)
     if spec.cubic_channel is not None:
@@ -499,6 +520,34 @@ def _fit_core(
     else:
         fm.model = identify_dsra(yc, ue, data.fs, order, br, segs)
     fm.order = fm.model.order
+
+
+def _bare(spec: ModelSpec) -> ModelSpec:
+    return replace(spec, lpv_signal=None, lpv_form="auto", lpv_points=3, added=[])
+
+
+def _fit_affine(
+    spec: ModelSpec, data: ValidationData, split: Split, like: FittedModel | None
+) -> FittedModel:
+    """parameter_varying with a continuous schedule: the structure without it is fitted first
+    (its poles refined on the free run; ``like`` when it is that structure already), then every
+    complex pole's frequency and damping are made affine in the signal and refined on the
+    estimation samples' free run (:func:`.lpv_affine.fit_affine`)."""
+    if spec.lpv_signal not in data.signals and spec.lpv_signal != TIME_SIGNAL:
+        raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
+    same = _plain(like) and _bare(like.spec) == _bare(spec)
+    base = like if same else fit(replace(spec, lpv_signal=None), data, split)
+    m = base.model
+    if m is None or spectral_radius(m.A) >= 1.0:
+        raise ValidationError("parameter_varying: the structure without it has no bounded free run")
+    phi = regressors(spec, data)
+    fm = FittedModel(spec, base.order, model=m, n_outputs=data.n_outputs)
+    u = shift(data.u, spec.delay)
+    fm.affine, fm.theta = fit_affine(
+        m.A, m.B, m.C, fm.schedule(data), u, data.y, split.est, data.fs, phi
+    )
+    fm.simulation_fit = True
+    return fm
 
 
 def _fit_lpv(

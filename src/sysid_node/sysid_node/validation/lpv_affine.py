@@ -1,0 +1,228 @@
+"""Modes whose frequency and damping follow a scheduling signal continuously: the affine LPV
+structure of ``parameter_varying`` and its score test.
+
+The local models of Sec. IV (:class:`.augment.LpvModel`) need stretches of steady operation
+at a few operating points; a signal that keeps moving (airspeed along a flight) leaves none.
+Here the baseline's modal form is kept and every complex pole moves with the normalised signal
+s(t) = (theta(t) - mean) / std:
+
+    z_k(t+1) = lambda_k(t) z_k(t) + u(t),
+    log lambda_k(t) = sigma_k (1 + q0_k + q1_k s(t)) + i omega_k (1 + p0_k + p1_k s(t)),
+    y(t) = sum_k [Re z_k, Im z_k] W_k + D u(t) + (initial-state terms),
+
+so the output is linear in W, D (solved by least squares for every pole trajectory: variable
+projection) and the four shape parameters per mode are refined on the free-run error of the
+estimation samples. A first-order recursion with a time-varying coefficient is a product
+scan (:func:`tv_scan`), vectorised in chunks; no per-sample Python loop. The one-step
+prediction adds an AR model of the free-run error (output error with an AR noise model).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+from scipy.optimize import least_squares
+
+from .residuals import lstsq
+
+CHUNK_LOG_RANGE = 200.0  # a scan chunk spans at most e^200 of decay (float64 keeps the sum)
+MIN_DECAY = 1e-7  # [1/sample] bound of -Re log lambda: every scheduled pole stays inside
+NOISE_AR = 10  # order of the AR model of the free-run error (one-step prediction)
+MAX_EVALUATIONS = 60  # free-run evaluations of the shape refinement
+
+
+def tv_scan(log_lam: np.ndarray, v: np.ndarray, z0: complex = 0.0) -> np.ndarray:
+    """z(t+1) = lambda(t) z(t) + v(t), z(0) = z0, for t = 0..N-1; returns z(0..N-1).
+
+    Within a chunk z(a + j) = P(j) (z(a) + sum_{s<j} v(a + s) / P(s + 1)), P the running
+    product of lambda (a cumulative sum of logs); chunks are cut where the product's decay
+    reaches e^CHUNK_LOG_RANGE, so 1 / P stays finite."""
+    log_lam = np.asarray(log_lam, complex)
+    v = np.asarray(v, complex)
+    n = log_lam.size
+    out = np.empty(n, complex)
+    decay = float(np.max(-log_lam.real)) if n else 0.0
+    step = max(16, int(CHUNK_LOG_RANGE / max(decay, 1e-12))) if decay > 0 else n
+    z = complex(z0)
+    for a in range(0, n, max(step, 1)):
+        b = min(n, a + step)
+        cum = np.concatenate([[0.0], np.cumsum(log_lam[a:b])])  # log P(0..b-a)
+        acc = np.cumsum(v[a:b] * np.exp(-cum[1:]))
+        out[a] = z
+        if b - a > 1:
+            out[a + 1 : b] = np.exp(cum[1 : b - a]) * (z + acc[: b - a - 1])
+        z = complex(np.exp(cum[-1]) * (z + acc[-1]))
+    return out
+
+
+def complex_modes(a: np.ndarray, b: np.ndarray, c: np.ndarray):
+    """Diagonal form of (A, B, C): (complex eigenvalues with Im > 0, their B rows and C
+    columns; real eigenvalues, their B rows and C columns)."""
+    lam, v = np.linalg.eig(a)
+    vi = np.linalg.inv(v)
+    bm, cm = vi @ b, c @ v
+    up = np.flatnonzero(lam.imag > 1e-10)
+    re = np.flatnonzero(np.abs(lam.imag) <= 1e-10)
+    return lam[up], bm[up], cm[:, up], lam[re].real, bm[re].real, cm[:, re].real
+
+
+@dataclass
+class AffineModal:
+    """The affine LPV structure fitted on a record (see the module docstring)."""
+
+    fs: float
+    sigma: np.ndarray  # (K,) Re log lambda of each complex mode at s = 0 [1/sample], < 0
+    omega: np.ndarray  # (K,) Im log lambda at s = 0 [rad/sample]
+    p1: np.ndarray  # (K,) frequency slope (relative, per unit of s)
+    q1: np.ndarray  # (K,) decay slope (relative, per unit of s)
+    real: np.ndarray  # (R,) real poles (constant)
+    theta_mean: float
+    theta_std: float
+    weights: np.ndarray  # (columns, outputs)
+    n_inputs: int
+    noise_ar: np.ndarray  # (p, outputs) AR coefficients of the free-run error
+    radius: float = 0.0  # largest |lambda| over the scheduling range seen in the fit
+    #: the same structure refined with nothing moving (p1 = q1 = 0): what the schedule is
+    #: compared with (a better constant refit is no evidence of a schedule)
+    constant: AffineModal | None = None
+
+    @staticmethod
+    def log_poles(sigma, omega, p0, p1, q0, q1, s: np.ndarray) -> np.ndarray:
+        """(K, N) log lambda_k(t) of the shape parameters along s (N,)."""
+        re = sigma[:, None] * np.maximum(1.0 + q0[:, None] + q1[:, None] * s, 1e-3)
+        re = np.minimum(re, -MIN_DECAY)
+        im = omega[:, None] * np.clip(1.0 + p0[:, None] + p1[:, None] * s, 1e-3, None)
+        return re + 1j * np.minimum(im, np.pi - 1e-6)
+
+    @staticmethod
+    def design(log_lam: np.ndarray, real: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Free-run regressors: Re/Im of every mode's response to every input and of its
+        free decay (the initial state), each real pole's the same, and the inputs (D)."""
+        n = u.shape[0]
+        cols = []
+        for lk in log_lam:
+            for j in range(u.shape[1]):
+                z = tv_scan(lk, u[:, j])
+                cols += [z.real, z.imag]
+            h = np.exp(np.concatenate([[0.0], np.cumsum(lk[:-1])]))
+            cols += [h.real, h.imag]
+        for r in real:
+            for j in range(u.shape[1]):
+                cols.append(signal.lfilter([0.0, 1.0], [1.0, -r], u[:, j]))
+            cols.append(r ** np.arange(n, dtype=float) if abs(r) > 0 else np.eye(1, n)[0])
+        cols += list(u.T)
+        return np.column_stack(cols) if cols else np.zeros((n, 0))
+
+    def normalised(self, theta: np.ndarray) -> np.ndarray:
+        return (np.asarray(theta, float) - self.theta_mean) / self.theta_std
+
+    def simulate(self, theta: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Free run (N, outputs) from the input along theta(t)."""
+        z0 = np.zeros_like(self.sigma)
+        ll = self.log_poles(self.sigma, self.omega, z0, self.p1, z0, self.q1,
+                            self.normalised(theta))
+        return self.design(ll, self.real, u) @ self.weights
+
+    def predict(self, theta: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """One-step prediction: the free run plus the AR prediction of its error from the
+        past measured errors."""
+        ys = self.simulate(theta, u)
+        e = y - ys
+        out = ys.copy()
+        a = self.noise_ar
+        for c in range(y.shape[1]):
+            out[:, c] += signal.lfilter(np.r_[0.0, a[:, c]], [1.0], e[:, c])
+        return out
+
+    def frequency_slopes_hz(self) -> np.ndarray:
+        """d f_k / d theta [Hz per unit of the signal], per complex mode."""
+        return self.omega * self.p1 / self.theta_std * self.fs / (2 * np.pi)
+
+    def frequencies_hz(self) -> np.ndarray:
+        return self.omega * self.fs / (2 * np.pi)
+
+
+def fit_affine(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    theta: np.ndarray,
+    u: np.ndarray,
+    y: np.ndarray,
+    rows: np.ndarray,
+    fs: float,
+    additive: np.ndarray | None = None,
+) -> tuple[AffineModal, np.ndarray | None]:
+    """The affine structure started from the LTI model (A, B, C): shape parameters by
+    output error on ``rows`` (variable projection), W and D (and the ``additive`` regressors'
+    coefficients, returned second) by least squares."""
+    lam, _, _, real, _, _ = complex_modes(a, b, c)
+    ll0 = np.log(lam)
+    sigma, omega = np.minimum(ll0.real, -MIN_DECAY), ll0.imag
+    k = sigma.size
+    th = np.asarray(theta, float)
+    mu, sd = float(np.mean(th[rows])), float(np.std(th[rows]))
+    sd = sd if sd > 1e-12 * max(1.0, abs(mu)) else 1.0
+    s = (th - mu) / sd
+    ys = np.maximum(np.std(y[rows], axis=0), 1e-300)
+
+    def cols(x: np.ndarray) -> np.ndarray:
+        p0, p1, q0, q1 = x.reshape(4, k)
+        d = AffineModal.design(AffineModal.log_poles(sigma, omega, p0, p1, q0, q1, s), real, u)
+        return d if additive is None else np.hstack([d, additive])
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        d = cols(x)[rows]
+        w = lstsq(d, y[rows])
+        return ((y[rows] - d @ w) / ys).ravel()
+
+    def solve(x0: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Refine the ``free`` entries of x from x0 (the others stay)."""
+        if not free.any():
+            return x0
+
+        def r(xf: np.ndarray) -> np.ndarray:
+            x = x0.copy()
+            x[free] = xf
+            return resid(x)
+
+        lim = np.r_[np.full(k, 0.5), np.full(k, 0.5), np.full(k, 0.9), np.full(k, 0.9)][free]
+        sol = least_squares(r, x0[free], bounds=(-lim, lim), method="trf", x_scale=0.01,
+                            diff_step=1e-4, max_nfev=MAX_EVALUATIONS)
+        x = x0.copy()
+        if sol.cost <= 0.5 * float(np.sum(r(x0[free]) ** 2)):
+            x[free] = sol.x
+        return x
+
+    def model(x: np.ndarray) -> tuple[AffineModal, np.ndarray | None]:
+        p0, p1, q0, q1 = x.reshape(4, k)
+        d = cols(x)
+        w = lstsq(d[rows], y[rows])
+        n_add = 0 if additive is None else additive.shape[1]
+        w_lin, w_add = (w[: w.shape[0] - n_add], w[w.shape[0] - n_add :] if n_add else None)
+        e = y - d @ w
+        ar = np.column_stack([_ar(e[rows, j], NOISE_AR) for j in range(y.shape[1])])
+        sig1 = sigma * (1 + q0)
+        rad = max([float(np.max(np.exp(np.minimum(
+            sig1 * np.maximum(1 + q1 / (1 + q0) * v, 1e-3), -MIN_DECAY)))) if k else 0.0
+            for v in (float(np.min(s)), float(np.max(s)))])
+        rad = max(rad, float(np.max(np.abs(real))) if real.size else 0.0)
+        am = AffineModal(fs, sig1, omega * (1 + p0), p1 / (1 + p0), q1 / (1 + q0), real, mu,
+                         sd, w_lin, u.shape[1], ar, rad)
+        return am, w_add
+
+    constant = np.r_[np.ones(k), np.zeros(k), np.ones(k), np.zeros(k)].astype(bool)
+    xc = solve(np.zeros(4 * k), constant)  # the poles refined with nothing moving, then ...
+    x = solve(xc, np.ones(4 * k, bool))  # ... with the schedule
+    out, w_add = model(x)
+    out.constant = model(xc)[0]
+    return out, w_add
+
+
+def _ar(e: np.ndarray, order: int) -> np.ndarray:
+    """AR(order) coefficients a of e_t ~ sum_i a_i e_{t-i} (least squares)."""
+    order = min(order, max(1, e.size // 20))
+    reg = np.lib.stride_tricks.sliding_window_view(e, order)[:-1][:, ::-1]
+    return lstsq(reg, e[order:])
