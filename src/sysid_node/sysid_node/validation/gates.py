@@ -293,6 +293,37 @@ def coherent_excess(ctx: Context) -> tuple[float, float, float, int]:
     return best
 
 
+def refined_peak(ctx: Context, f0: float, res: float, channel: int) -> float:
+    """The frequency where the free-run error power peaks within 1.5 ``res`` of ``f0``, on the
+    whole record's error (estimation and validation samples: one contiguous record, three
+    Welch averages, a parabola through the log power of the top bin and its neighbours): the
+    start of the missing mode's re-fit (its evidence, on the validation samples alone, can be
+    a few bins coarse; a lightly damped mode's re-fit converges only from within its own
+    bandwidth). ``f0`` when there is no free run."""
+    sim = ctx.assessment.simulation
+    if sim is None or not np.isfinite(f0):
+        return f0
+    e = (ctx.data.y - sim)[:, channel]
+    if not np.all(np.isfinite(e)):
+        return f0
+    fs = ctx.data.fs
+    nper = 1 << int(np.floor(np.log2(max(e.size // 2, 16))))
+    f, pee = signal.welch(e, fs=fs, nperseg=nper)
+    freqs = np.array(ctx.model_freqs or [np.inf])
+    ok = (np.abs(f - f0) <= 1.5 * res) & np.all(
+        np.abs(f[:, None] - freqs[None, :]) > NEAR_MODE * freqs[None, :], axis=1
+    ) & (f > 0)
+    if not ok.any():
+        return f0
+    k = int(np.argmax(np.where(ok, pee, -1.0)))
+    if 0 < k < f.size - 1 and np.all(pee[k - 1 : k + 2] > 0):
+        a, b, c = np.log(pee[k - 1 : k + 2])
+        den = a - 2 * b + c
+        if den < 0:
+            return float(f[k] + (f[1] - f[0]) * np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return float(f[k])
+
+
 def missing_mode(ctx: Context, mode_peaks: list) -> Hypothesis:
     """The strongest one-step residual peak away from the model's modes, or (with an input)
     the strongest coherence of the free-run error with the input away from them: an
@@ -329,7 +360,7 @@ def missing_mode(ctx: Context, mode_peaks: list) -> Hypothesis:
         return h
     h.p_value = float(min(1.0, 2 * p_coh))
     h.parameters = {
-        "frequency_hz": f_coh,
+        "frequency_hz": refined_peak(ctx, f_coh, res_coh, c_coh),
         "damping": float("nan"),
         "channel": c_coh,
         "evidence_frequency_hz": f_coh,
