@@ -19,13 +19,11 @@ from .assess import Assessment, compare_primary, primary_error
 from .augment import ModelSpec
 from .data import ValidationData, ValidationError
 from .gates import Context, Hypothesis
-from .models import FittedModel, fit, identify_dsra, shift
-from .simulation import LinearDynamics, fit_output_error, spectral_radius
+from .models import FittedModel, fit
 from .split import Split
 
 P_DROP = 1e-2
 MIN_DROP = 0.05  # a structural change must lower the primary error by at least 5 %
-MAX_DELAY_SAMPLES = 8
 
 #: Parameters an effect adds, in order of complexity (Occam tie-break of :func:`rank`).
 COMPLEXITY = {
@@ -184,31 +182,14 @@ def delay_estimate(ctx: Context, spec: ModelSpec, peak_lag: int) -> float | None
     again (DSRA, B and D on the free run; no pole refinement: cheap); the shortest of equally
     good delays (a feedthrough D makes d and d + 1 alike), then the vertex of a parabola through
     its neighbours if it fits better; None if no delay beats the current one."""
-    cur = ctx.current
-    data, split = ctx.data, ctx.split
-    if not data.n_inputs or cur.model is None or cur.locals or spec.feedback:
+    scan = G.delay_scan(ctx, spec, peak_lag)
+    if scan is None:
         return None
-    top = int(max(MAX_DELAY_SAMPLES, int(peak_lag) + 2))
-    est = split.est
-    scale = np.std(data.y[est], axis=0)
-    order = spec.order + spec.extra_order
-
-    def cost(d: float) -> float:
-        u = shift(data.u, spec.delay + d)
-        try:
-            m = identify_dsra(data.y, u, data.fs, order, spec.block_rows, split.est_segments)
-        except ValidationError:
-            return np.inf
-        if spectral_radius(m.A) >= 1.0:
-            return np.inf
-        oe = fit_output_error(LinearDynamics.build(m.A, m.C, data.n), data.y, u, est)
-        return float(np.sum((oe.rms / scale) ** 2))
-
-    grid = np.arange(0, top + 1)
-    errs = np.array([cost(float(d)) for d in grid])
+    grid, errs, cost = scan
     best = float(np.min(errs))
     if not np.isfinite(best):
         return None
+    est = ctx.split.est
     tol = 2.0 * np.sqrt(2.0 / est.size)  # sampling spread of a sum of squares, relative
     k = int(np.flatnonzero(errs <= best * (1 + tol))[0])  # the shortest of equal delays
     if k == 0:
@@ -219,7 +200,7 @@ def delay_estimate(ctx: Context, spec: ModelSpec, peak_lag: int) -> float | None
         den = a - 2 * b + c
         if den > 0:  # a fractional delay only where it fits better than the whole one
             frac = d + float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
-            if cost(frac) < errs[k]:
+            if cost(frac)[0] < errs[k]:
                 d = frac
     return round(spec.delay + d, 3)
 
