@@ -54,6 +54,22 @@ def test_sigint_stops_the_group_cleanly(tmp_path):
     assert not _alive(child)
 
 
+def test_sigint_stops_a_group_started_with_sigint_ignored(tmp_path):
+    """A caller that ignores SIGINT (a background job of a script) must not pass that on."""
+    log = tmp_path / "out.log"
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        proc = start_group([sys.executable, "-c", SCRIPT, "obey"], log)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    child = _child_pid(log)
+    assert stop_group(proc, timeout=10) == 0
+    deadline = time.monotonic() + 5
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(child)
+
+
 def test_group_ignoring_sigint_is_killed(tmp_path):
     log = tmp_path / "out.log"
     proc = start_group([sys.executable, "-c", SCRIPT, "ignore"], log)
