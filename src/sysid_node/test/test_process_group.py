@@ -43,15 +43,21 @@ def _child_pid(log) -> int:
     raise AssertionError("the group did not start")
 
 
-def test_sigint_stops_the_group_cleanly(tmp_path):
-    log = tmp_path / "out.log"
-    proc = start_group([sys.executable, "-c", SCRIPT, "obey"], log)
+def _stops(proc, log, timeout: float) -> int | None:
+    """stop_group's status; the grandchild is gone within 5 s after it."""
     child = _child_pid(log)
-    assert stop_group(proc, timeout=10) == 0
+    status = stop_group(proc, timeout=timeout)
     deadline = time.monotonic() + 5
     while _alive(child) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _alive(child)
+    return status
+
+
+def test_sigint_stops_the_group_cleanly(tmp_path):
+    log = tmp_path / "out.log"
+    proc = start_group([sys.executable, "-c", SCRIPT, "obey"], log)
+    assert _stops(proc, log, timeout=10) == 0
 
 
 def test_sigint_stops_a_group_started_with_sigint_ignored(tmp_path):
@@ -62,23 +68,13 @@ def test_sigint_stops_a_group_started_with_sigint_ignored(tmp_path):
         proc = start_group([sys.executable, "-c", SCRIPT, "obey"], log)
     finally:
         signal.signal(signal.SIGINT, previous)
-    child = _child_pid(log)
-    assert stop_group(proc, timeout=10) == 0
-    deadline = time.monotonic() + 5
-    while _alive(child) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not _alive(child)
+    assert _stops(proc, log, timeout=10) == 0
 
 
 def test_group_ignoring_sigint_is_killed(tmp_path):
     log = tmp_path / "out.log"
     proc = start_group([sys.executable, "-c", SCRIPT, "ignore"], log)
-    child = _child_pid(log)
-    assert stop_group(proc, timeout=0.5) == -signal.SIGKILL
-    deadline = time.monotonic() + 5
-    while _alive(child) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not _alive(child)
+    assert _stops(proc, log, timeout=0.5) == -signal.SIGKILL
 
 
 def test_finished_process_returns_its_status(tmp_path):
