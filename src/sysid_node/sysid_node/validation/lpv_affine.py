@@ -12,8 +12,9 @@ s(t) = (theta(t) - mean) / std:
 
 so the output is linear in W, D (solved by least squares for every pole trajectory: variable
 projection) and the four shape parameters per mode are refined on the free-run error of the
-estimation samples. A first-order recursion with a time-varying coefficient is a product
-scan (:func:`tv_scan`), vectorised in chunks; no per-sample Python loop. The one-step
+estimation samples (Kaufman's Jacobian, each column one more scan). A first-order recursion
+with a time-varying coefficient is a product scan (:func:`tv_scan`), vectorised in chunks; no
+per-sample Python loop. The one-step
 prediction adds an AR model of the free-run error (output error with an AR noise model).
 """
 
@@ -22,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
+from scipy import linalg, signal
 from scipy.optimize import least_squares
 
 from .residuals import lstsq
@@ -168,38 +169,79 @@ def fit_affine(
     s = (th - mu) / sd
     ys = np.maximum(np.std(y[rows], axis=0), 1e-300)
 
-    def cols(x: np.ndarray) -> np.ndarray:
+    m_in = u.shape[1]
+    per = 2 * (m_in + 1)  # columns of one mode: Re/Im of its response to each input, of its decay
+    memo: dict = {}
+
+    def cols(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p0, p1, q0, q1 = x.reshape(4, k)
-        d = AffineModal.design(AffineModal.log_poles(sigma, omega, p0, p1, q0, q1, s), real, u)
-        return d if additive is None else np.hstack([d, additive])
+        ll = AffineModal.log_poles(sigma, omega, p0, p1, q0, q1, s)
+        d = AffineModal.design(ll, real, u)
+        return (d if additive is None else np.hstack([d, additive])), ll
+
+    def evaluate(x: np.ndarray):
+        key = x.tobytes()
+        if key not in memo:
+            memo.clear()
+            d, ll = cols(x)
+            dr = d[rows]
+            w = lstsq(dr, y[rows])
+            q, r_, _ = linalg.qr(dr, mode="economic", pivoting=True)
+            keep = np.abs(np.diag(r_)) > 1e-10 * max(abs(r_[0, 0]), 1e-300) if r_.size else []
+            memo[key] = (d, ll, w, q[:, keep], y[rows] - dr @ w)
+        return memo[key]
 
     def resid(x: np.ndarray) -> np.ndarray:
-        d = cols(x)[rows]
-        w = lstsq(d, y[rows])
-        return ((y[rows] - d @ w) / ys).ravel()
+        return (evaluate(x)[4] / ys).ravel()
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        """Kaufman's variable-projection Jacobian -P_perp (dPhi/dx) w: each shape parameter
+        moves one mode's log-poles by dlog(t), which changes its response z by the scan of
+        lambda dlog z and its decay h by h cumsum(dlog) (no finite differences)."""
+        d, ll, w, q, _ = evaluate(x)
+        out = np.empty((rows.size * y.shape[1], 4 * k))
+        for i in range(k):
+            lam = np.exp(ll[i])
+            base = i * per
+            zs = [d[:, base + 2 * j] + 1j * d[:, base + 2 * j + 1] for j in range(m_in)]
+            h = d[:, base + 2 * m_in] + 1j * d[:, base + 2 * m_in + 1]
+            for t, dlog in enumerate((1j * omega[i], 1j * omega[i] * s, sigma[i],
+                                      sigma[i] * s)):
+                dl = np.broadcast_to(dlog, s.shape)
+                dy = np.zeros((d.shape[0], y.shape[1]))
+                for j, z in enumerate(zs):
+                    dz = tv_scan(ll[i], lam * dl * z)
+                    dy += np.outer(dz.real, w[base + 2 * j]) + np.outer(dz.imag,
+                                                                       w[base + 2 * j + 1])
+                dh = h * np.concatenate([[0.0], np.cumsum(dl[:-1])])
+                dy += np.outer(dh.real, w[base + 2 * m_in]) + np.outer(dh.imag,
+                                                                       w[base + 2 * m_in + 1])
+                v = dy[rows]
+                v = v - q @ (q.T @ v)
+                out[:, t * k + i] = (-v / ys).ravel()
+        return out
 
     def solve(x0: np.ndarray, free: np.ndarray) -> np.ndarray:
         """Refine the ``free`` entries of x from x0 (the others stay)."""
         if not free.any():
             return x0
 
-        def r(xf: np.ndarray) -> np.ndarray:
+        def full(xf: np.ndarray) -> np.ndarray:
             x = x0.copy()
             x[free] = xf
-            return resid(x)
+            return x
 
         lim = np.r_[np.full(k, 0.5), np.full(k, 0.5), np.full(k, 0.9), np.full(k, 0.9)][free]
-        sol = least_squares(r, x0[free], bounds=(-lim, lim), method="trf", x_scale=0.01,
-                            diff_step=1e-4, max_nfev=MAX_EVALUATIONS)
-        x = x0.copy()
-        if sol.cost <= 0.5 * float(np.sum(r(x0[free]) ** 2)):
-            x[free] = sol.x
-        return x
+        sol = least_squares(lambda xf: resid(full(xf)), x0[free],
+                            jac=lambda xf: jac(full(xf))[:, free], bounds=(-lim, lim),
+                            method="trf", x_scale=0.01, max_nfev=MAX_EVALUATIONS)
+        if sol.cost <= 0.5 * float(np.sum(resid(x0) ** 2)):
+            return full(sol.x)
+        return x0
 
     def model(x: np.ndarray) -> tuple[AffineModal, np.ndarray | None]:
         p0, p1, q0, q1 = x.reshape(4, k)
-        d = cols(x)
-        w = lstsq(d[rows], y[rows])
+        d, _, w, _, _ = evaluate(x)
         n_add = 0 if additive is None else additive.shape[1]
         w_lin, w_add = (w[: w.shape[0] - n_add], w[w.shape[0] - n_add :] if n_add else None)
         e = y - d @ w
