@@ -1,0 +1,22 @@
+"""input_delay's scan route (validation.gates.delay_scan): a delay under a swept input, which
+the residual/input cross-correlation cannot see (a sweep cannot be prewhitened), is found by
+the delay scan and confirmed by the held-out trial (a drawn case of the hidden-effect suite)."""
+
+from __future__ import annotations
+
+import pytest
+from sysid_node.validation import suite as S
+from sysid_node.validation.workflow import Options, run_validation
+
+
+def test_a_delay_under_a_sweep_is_found_by_the_scan():
+    seed = 1103003  # input_delay draw 3 of the suite: sweep input, 2-sample delay
+    sc = S.draw("input_delay", seed, "sweep")
+    assert sc.truth["samples"] == 2
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    xc = out.before.xcorr
+    assert min(x.p_past for x in xc.values()) * len(xc) >= 0.01  # the correlation gate is blind
+    h = next(h for h in out.hyps if h.effect == "input_delay")
+    assert h.significant and "an input delayed 2 samples" in h.evidence
+    assert h.parameters["samples"] == pytest.approx(2.0, abs=0.5)
+    assert out.added[:1] == ["input_delay"]
