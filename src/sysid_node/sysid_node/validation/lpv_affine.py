@@ -58,15 +58,10 @@ def tv_scan(log_lam: np.ndarray, v: np.ndarray, z0: complex = 0.0) -> np.ndarray
     return out
 
 
-def complex_modes(a: np.ndarray, b: np.ndarray, c: np.ndarray):
-    """Diagonal form of (A, B, C): (complex eigenvalues with Im > 0, their B rows and C
-    columns; real eigenvalues, their B rows and C columns)."""
-    lam, v = np.linalg.eig(a)
-    vi = np.linalg.inv(v)
-    bm, cm = vi @ b, c @ v
-    up = np.flatnonzero(lam.imag > 1e-10)
-    re = np.flatnonzero(np.abs(lam.imag) <= 1e-10)
-    return lam[up], bm[up], cm[:, up], lam[re].real, bm[re].real, cm[:, re].real
+def poles(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues of A: (complex ones with Im > 0, real ones)."""
+    lam = np.linalg.eigvals(a)
+    return lam[lam.imag > 1e-10], lam[np.abs(lam.imag) <= 1e-10].real
 
 
 @dataclass
@@ -82,7 +77,6 @@ class AffineModal:
     theta_mean: float
     theta_std: float
     weights: np.ndarray  # (columns, outputs)
-    n_inputs: int
     noise_ar: np.ndarray  # (p, outputs) AR coefficients of the free-run error
     radius: float = 0.0  # largest |lambda| over the scheduling range seen in the fit
     #: the same structure refined with nothing moving (p1 = q1 = 0): what the schedule is
@@ -147,8 +141,6 @@ class AffineModal:
 
 def fit_affine(
     a: np.ndarray,
-    b: np.ndarray,
-    c: np.ndarray,
     theta: np.ndarray,
     u: np.ndarray,
     y: np.ndarray,
@@ -156,10 +148,10 @@ def fit_affine(
     fs: float,
     additive: np.ndarray | None = None,
 ) -> tuple[AffineModal, np.ndarray | None]:
-    """The affine structure started from the LTI model (A, B, C): shape parameters by
-    output error on ``rows`` (variable projection), W and D (and the ``additive`` regressors'
-    coefficients, returned second) by least squares."""
-    lam, _, _, real, _, _ = complex_modes(a, b, c)
+    """The affine structure started from the poles of an LTI model's A (its residues are solved
+    again): shape parameters by output error on ``rows`` (variable projection), W and D (and
+    the ``additive`` regressors' coefficients, returned second) by least squares."""
+    lam, real = poles(a)
     ll0 = np.log(lam)
     sigma, omega = np.minimum(ll0.real, -MIN_DECAY), ll0.imag
     k = sigma.size
@@ -252,7 +244,7 @@ def fit_affine(
             for v in (float(np.min(s)), float(np.max(s)))])
         rad = max(rad, float(np.max(np.abs(real))) if real.size else 0.0)
         am = AffineModal(fs, sig1, omega * (1 + p0), p1 / (1 + p0), q1 / (1 + q0), real, mu,
-                         sd, w_lin, u.shape[1], ar, rad)
+                         sd, w_lin, ar, rad)
         return am, w_add
 
     constant = np.r_[np.ones(k), np.zeros(k), np.ones(k), np.zeros(k)].astype(bool)

@@ -543,9 +543,7 @@ def _fit_affine(
     phi = regressors(spec, data)
     fm = FittedModel(spec, base.order, model=m, n_outputs=data.n_outputs)
     u = shift(data.u, spec.delay)
-    fm.affine, fm.theta = fit_affine(
-        m.A, m.B, m.C, fm.schedule(data), u, data.y, split.est, data.fs, phi
-    )
+    fm.affine, fm.theta = fit_affine(m.A, fm.schedule(data), u, data.y, split.est, data.fs, phi)
     fm.simulation_fit = True
     return fm
 
