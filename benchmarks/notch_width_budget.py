@@ -27,6 +27,8 @@ plus ``fade_time``:
    - ``+ damping``: damping up to ``zeta + damping_sigma_k * sigma_zeta``;
    - ``+ frequency``: ``+- sigma_k * sigma_f``;
    - ``+ age``: ``+- drift bound * (age + design_horizon)`` (``--age``: the estimate age);
+   - ``as a pair``: the node's region (``+ age/drift``) with a notch pair where that lags
+     less (``resonance.design_pair``; width: of each section);
    - ``box``: the whole damping interval at every frequency (no joint region);
    - ``chance P`` (``--chance P ...``): no region at all, the narrowest notch whose peak
      reduction meets the requirement with probability ``P`` when frequency and damping are
@@ -186,6 +188,14 @@ def budget(s: dict, age: float) -> list[tuple[str, float, float]]:
             base = lag
         rows.append((name, float(np.median(lag)), float(np.median(lag / base)),
                      float(np.median(bw))))
+        if name == "+ age/drift":  # the node's region: its pair (resonance.design_pair)
+            pair = R.design_pair(c, lo, hi, zh, cfg["peak_reduction"], cfg["depth"], fs, zp,
+                                 xo, zeta_c=zc)
+            plag = np.minimum(pair.lag_deg, lag)  # a pair where it lags less
+            pbw = S.bandwidth_from_zp(c, pair.zp, cfg["peak_reduction"], fs)
+            rows.append(("  as a pair, where it lags less", float(np.median(plag)),
+                         float(np.median(plag / base)),
+                         float(np.median(np.where(pair.lag_deg < lag, pbw, bw)))))
     return rows
 
 

@@ -81,7 +81,11 @@ class Bank:
         pr = R.peak_reduction_db(np.array([beam[0], 1.0]), np.array([beam[1], 0.05]), c, zp,
                                  zz, self.fs)
         lags = S.damping_lag_deg(self.crossover, c, zp, zz, self.fs)
-        beam_lag = float(lags[np.argmin(np.abs(c - beam[0]))]) if c.size else 0.0
+        # the beam's notch: the sections of the slot (two per adaptive slot: one, or a pair)
+        # of the section nearest the beam
+        slot = (np.arange(p.center.size) // 2)[p.depth_db > S.DEPTH_OFF_DB]
+        beam_lag = float(np.sum(lags[slot == slot[np.argmin(np.abs(c - beam[0]))]])) \
+            if c.size else 0.0
         self.rows.append((t, pr[0], pr[1], beam_lag, state, float(np.sum(lags))))
 
     def array(self) -> np.ndarray:

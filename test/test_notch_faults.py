@@ -335,7 +335,7 @@ def test_degraded_estimate_holds_without_retuning(rig):
     d = rig.wait_diag("notch_sample", lambda d: d.get("bank_state") == "holding")
     centres = [n.center_frequency for n in rig.banks["s"][-1].notches if n.mode_id == 4]
     ok = d.get("bank_state") == "holding" and "outliers" in d.get("reason", "") and \
-        centres and abs(centres[0] - F_MODE) < 0.01
+        centres and abs(np.mean(centres) - F_MODE) < 0.01  # one section, or a pair about it
     record(rig, "DEGRADED estimate", "degraded visibly", ok)
     assert ok, (d, centres)
 

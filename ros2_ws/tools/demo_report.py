@@ -24,7 +24,8 @@ class DemoResult:
     bag: Path
     t0: float
     estimates: list[dict] = field(default_factory=list)  # t, modes[(id, status, f, fstd, z)]
-    banks: list[dict] = field(default_factory=list)  # t, notches[(mode_id, state, fc, bw, depth)]
+    banks: list[dict] = field(default_factory=list)  # t, notches[(mode_id, state, fc, bw, depth,
+    # shape depth, peak reduction)]: sections
     t_in: np.ndarray | None = None
     y_in: np.ndarray | None = None
     t_out: np.ndarray | None = None
@@ -33,7 +34,8 @@ class DemoResult:
 
     def table(self, step: float = 2.0) -> str:
         """Modes and notch centres every ``step`` seconds of data time."""
-        lines = [f"{'t [s]':>6}  {'modes: id f[Hz] zeta[%] (status)':<58}  notch centres [Hz]"]
+        lines = [f"{'t [s]':>6}  {'modes: id f[Hz] zeta[%] (status)':<58}  "
+                 "notch centres [Hz] (p: a pair)"]
         if not self.estimates:
             return "\n".join([*lines, "  (no /modal_estimate received)"])
         t_end = self.estimates[-1]["t"]
@@ -48,9 +50,9 @@ class DemoResult:
                 if m[1] != 2
             )
             notches = " ".join(
-                f"{n[2]:.2f}" + ("" if n[1] == 0 else f"({NOTCH_STATE[n[1]][0]})")
-                for n in (bank["notches"] if bank else [])
-                if n[1] != 3
+                f"{c:.2f}" + ("p" if k > 1 else "") + ("" if st == 0 else f"({NOTCH_STATE[st][0]})")
+                for _, st, c, k in notch_groups(bank["notches"] if bank else [])
+                if st != 3
             )
             lines.append(f"{t:6.1f}  {modes or '-':<58}  {notches or '-'}")
             t += step
@@ -138,6 +140,17 @@ class DemoResult:
         }
 
 
+def notch_groups(notches: list[tuple]) -> list[tuple[int, int, float, int]]:
+    """The notches of a /notch_bank message: the sections that follow one mode in one state
+    (a pair) as one notch, ``(mode_id, state, centre [Hz], sections)``, its centre the mean of
+    its sections' (a pair sits symmetrically about it)."""
+    groups: dict = {}
+    for i, n in enumerate(notches):
+        groups.setdefault((n[0], n[1]) if n[0] else i, []).append(n)
+    return [(g[0][0], g[0][1], float(np.mean([n[2] for n in g])), len(g))
+            for g in groups.values()]
+
+
 def _last_before(records: list[dict], t: float) -> dict | None:
     best = None
     for r in records:
@@ -154,7 +167,7 @@ def _stamp(header) -> float:
 
 def analyse(bag: Path, recorded: Path, params: Path | None = None) -> DemoResult:
     """Read the input bag and the recording of a demo run (``params``: the notch node's YAML,
-    for the depths whose poles its sections keep)."""
+    for the depths whose poles its sections keep in recordings without Notch.shape_depth)."""
     values = {"depth": 30.0, "fallback_depth": 30.0}
     if params is not None and params.exists():
         import yaml
@@ -185,7 +198,7 @@ def analyse(bag: Path, recorded: Path, params: Path | None = None) -> DemoResult
             else:
                 notches = [
                     (n.mode_id, n.state, n.center_frequency, n.bandwidth, n.depth,
-                     shape.get(n.state, shape[0]), n.peak_reduction)
+                     getattr(n, "shape_depth", shape.get(n.state, shape[0])), n.peak_reduction)
                     for n in msg.notches
                 ]
                 res.banks.append({"t": t, "notches": notches, "fallback": msg.fallback_active,

@@ -23,7 +23,7 @@ class AdaptiveNotchFilter:
     ) -> None:
         self.fs = float(fs)
         self.policy = RetuningPolicy(config, fs)
-        self.bank = NotchBank(fs, channels, config.max_notches + 1, substep)
+        self.bank = NotchBank(fs, channels, self.policy.n_sections, substep)
         self.bank.params = self.policy.params()
         self.enabled = np.ones(channels, dtype=bool)
 

@@ -447,6 +447,7 @@ class NotchFilterNode(Node):
             m.mode_id, m.state = int(n.mode_id), int(n.state)
             m.center_frequency, m.bandwidth, m.depth = (float(n.center), float(n.bandwidth),
                                                         float(n.depth))
+            m.shape_depth = float(n.shape_depth)
             m.peak_reduction = float(pr)
             notches.append(m)
         msg.notches = notches

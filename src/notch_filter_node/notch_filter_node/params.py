@@ -42,7 +42,8 @@ PARAMS: tuple[ParamSpec, ...] = (
        "QoS of the filtered output: 'reliable' (matches reliable and best-effort subscribers) or "
        "'sensor_data' (best effort)", "read_only", choices=NP.QOS_CHOICES),
     _p("max_notches", int, _D.max_notches,
-       "Number of adaptive notch sections (the fallback notch has its own) [-]", "read_only",
+       "Number of adaptive notches (each one section, or two for a pair: notch_pairs; the "
+       "fallback notch has its own) [-]", "read_only",
        lo=1, hi=20),
     # -- sampling (structural: rebuilds the bank) --
     _p("sample_rate", float, 0.0,
@@ -61,7 +62,8 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=1, hi=10000),
     # -- retuning policy (live) --
     _p("slew_rate", float, _D.slew_rate,
-       "Largest rate of change of a notch centre and bandwidth [Hz/s]", lo=0.001, hi=1000.0,
+       "Largest rate of change of a notch centre, and of its bandwidth (a pair's spread) as it "
+       "narrows; a notch widens at once, spread over one block [Hz/s]", lo=0.001, hi=1000.0,
        unit="Hz/s"),
     _p("hysteresis", float, _D.hysteresis,
        "A notch centre moves only when the estimate differs from its target by more than "
@@ -84,6 +86,10 @@ PARAMS: tuple[ParamSpec, ...] = (
        "it sets the confidence of the peak_reduction guarantee: the region covers the true "
        "mode with probability 96.5 % for 3 and 2 (Gaussian, calibrated stds; "
        "resonance.region_confidence) [-]", lo=0.0, hi=10.0),
+    _p("notch_pairs", bool, _D.notch_pairs,
+       "Where a staggered pair of shallower sections (a flat-bottomed stop band) meets "
+       "peak_reduction over the mode's uncertainty with less phase lag at crossover_frequency "
+       "than one notch, use the pair (the two sections follow the same mode) [-]"),
     _p("damping_sigma_k", float, _D.damping_sigma_k,
        "The width is designed for a damping up to zeta + damping_sigma_k * zeta_std (an "
        "ellipse with the frequency interval; confidence: see sigma_k) [-]",

@@ -25,10 +25,16 @@ made since. A box is designed ahead, for the age plus ``max(design_horizon, half
 estimate arrived)``, and re-designed when the age outgrows it (a few times over a long gap, not at
 every block). Where no notch up to ``bandwidth_max`` reaches the requirement (a well-damped mode:
 its peak is less than that above its static gain), the notch is the narrowest within 1 dB of the
-best such notch, and says so. Then the phase budget: when the adaptive notches together lag more
-than ``phase_lag_budget`` at ``crossover_frequency``, either they are narrowed by a common factor
-(``budget_priority: phase_lag``; their guaranteed peak reduction drops and each says so) or they
-keep their width and the bank says the budget is exceeded (``peak_reduction``).
+best such notch, and says so. With ``notch_pairs`` a notch is a pair of sections at
+``centre -+ spread`` (``resonance.design_pair``: a flat-bottomed stop band) where that lags
+:data:`PAIR_HYSTERESIS` less at the crossover than the single notch, and single again where the
+single notch lags that much less; each slot of the bank has two sections, the second bypassed
+for a single notch, and a change of form fades it in or out over ``fade_time``. A notch widens
+at once and narrows at ``slew_rate``. Then the phase budget: when the adaptive notches together
+lag more than ``phase_lag_budget`` at ``crossover_frequency``, either they are narrowed by a
+common factor (a pair's spread with its sections; ``budget_priority: phase_lag``; their
+guaranteed peak reduction drops and each says so) or they keep their width and the bank says
+the budget is exceeded (``peak_reduction``).
 
 Bank states (sysid_msgs/NotchBank), in order of degradation:
 
@@ -58,8 +64,9 @@ arrival), so a stamp from the future cannot keep an estimate fresh; a stamp more
 arrives while this node's input is behind (queued on a busy machine): it counts from its stamp,
 so the node's own backlog does not age it (a wrong clock gains at most ``future_tolerance``).
 A lost mode's notch holds for ``hold_time``, then fades its depth out over ``fade_time`` and
-frees its slot. Every parameter moves at a bounded rate per second of data (centre and
-bandwidth ``slew_rate``, depth ``depth / fade_time``), whatever the block size.
+frees its slot. Every parameter moves at a bounded rate per second of data (centre, and
+bandwidth and spread as they narrow, ``slew_rate``; depth ``depth / fade_time``; a widening at
+once, spread by the bank over the block), whatever the block size.
 """
 
 from __future__ import annotations
@@ -87,6 +94,11 @@ HEALTH_OK, HEALTH_DEGRADED, HEALTH_FAULT = 0, 1, 2
 BUDGET_PRIORITIES = ("phase_lag", "peak_reduction")
 #: Relative bandwidth change below which a notch keeps a narrower-than-before target.
 BANDWIDTH_HYSTERESIS = 0.1
+#: A notch becomes a pair when the pair lags this fraction less than the single notch, and a
+#: single notch again when that lags this fraction less than the pair (no flapping).
+PAIR_HYSTERESIS = 0.1
+#: A box within this relative difference of the one a pair's spread was searched for keeps it.
+PAIR_BOX_TOLERANCE = 0.05
 #: Where the requirement cannot be met: the narrowest notch within this of the best one [dB].
 SHORTFALL_SLACK_DB = 1.0
 #: A box is re-designed narrower once it has shrunk below this fraction of the designed one.
@@ -173,7 +185,8 @@ class PolicyConfig:
     fallback_center: float = 2.79  # [Hz]
     fallback_bandwidth: float = 2.56  # [Hz]
     fallback_depth: float = 30.0  # [dB], 0 = no fallback notch
-    max_notches: int = 5  # adaptive sections (the fallback has its own)
+    max_notches: int = 5  # adaptive notches (two sections each; the fallback has its own)
+    notch_pairs: bool = True  # a staggered pair where it lags less than a single notch
 
 
 def check_config(c: PolicyConfig, fs: float = math.nan) -> str:
@@ -223,6 +236,17 @@ class Slot:
     target_bandwidth: float = 0.1
     target_depth: float = 0.0
     desired_bandwidth: float = 0.1  # before the phase-lag budget
+    # form: one section at the centre, or a pair at ``center -+ spread`` (split fades between)
+    spread: float = 0.0  # [Hz]
+    target_spread: float = 0.0
+    split: float = 0.0  # [-] 0: a single notch, 1: a pair
+    target_split: float = 0.0
+    pair_depth: float = 0.0  # [dB] each section of the pair
+    target_pair_depth: float = 0.0
+    desired_spread: float = 0.0  # the design's form, before the phase-lag budget
+    desired_pair_depth: float = 0.0  # 0: the design is a single notch
+    pair_factor: float = math.nan  # the pair spread the last search found (resonance.design_pair)
+    pair_box: tuple[float, ...] = ()  # for a box of this shape: h/f, zeta_hi, zeta_c, offset/f
     hold_since: float = math.nan
     # the mode model: estimate, drift bound [Hz/s], stamp and arrival of its estimate
     f: float = math.nan
@@ -248,6 +272,7 @@ class NotchStatus:
     bandwidth: float
     depth: float
     limit: str = ""
+    shape_depth: float = math.nan  # [dB] depth whose poles (and bandwidth) the section has
 
 
 @dataclass(frozen=True)
@@ -586,6 +611,8 @@ class RetuningPolicy:
         self._apply_budget()
         for slot in new:  # depth 0 yet: start at the budget-limited width, no sweep down
             slot.bandwidth = slot.target_bandwidth
+            slot.spread, slot.split = slot.target_spread, slot.target_split
+            slot.pair_depth = slot.target_pair_depth
 
     def _set_model(self, slot: Slot, mm: SM.ModeModel, est: EstimateInput) -> None:
         c = self.config
@@ -608,6 +635,8 @@ class RetuningPolicy:
         slot.hold_since = t
         slot.target_center = slot.center
         slot.target_bandwidth = slot.bandwidth
+        slot.target_spread, slot.target_split = slot.spread, slot.split
+        slot.target_pair_depth = slot.pair_depth
         self.revision += 1
 
     # ---- width ----
@@ -692,27 +721,111 @@ class RetuningPolicy:
                                         c.depth, self.fs, zp_min[k], zp_max[k], zeta_c=zc[k])
             zp[k], worst[k] = zp_k, worst_k
         bw = S.bandwidth_from_zp(tc, zp, c.depth, self.fs)
+        pair = np.zeros(len(slots), dtype=bool)
+        if c.notch_pairs and not short.all():
+            pr = self._design_pairs(slots, np.stack([h / f, zeta, zc, (tc - f) / f], axis=1),
+                                    tc, lo, hi, zeta, zc, zp)
+            g = 10.0 ** (-c.depth / 20.0)
+            single = S.damping_lag_deg(c.crossover_frequency, tc, zp, g * zp, self.fs)
+            was = np.array([s.desired_pair_depth > 0 for s in slots])
+            pair = ~short & (pr.lag_deg < single * np.where(was, 1.0 + PAIR_HYSTERESIS,
+                                                            1.0 - PAIR_HYSTERESIS))
         for i, s in enumerate(slots):
             s.design = (float(lo[i]), float(hi[i]), float(zeta[i]), float(tc[i]), float(zc[i]))
-            s.guaranteed = float(worst[i])
             s.limit = (f"at most {worst[i]:.1f} dB within bandwidth_max (damping "
                        f"{zeta[i]:.3f})" if short[i] else "")
-            self._set_desired(s, float(bw[i]))
+            if pair[i]:
+                b = S.bandwidth_from_zp(tc[i], pr.zp[i], float(pr.depth_db[i]), self.fs)
+                if s.desired_pair_depth > 0 and self._keeps_pair(s, float(b), i, lo, hi, zeta,
+                                                                 tc, zc):
+                    continue  # the pair it has still holds the new box and is hardly wider
+                s.guaranteed = float(pr.worst[i])
+                s.desired_spread = float(pr.spread[i])
+                s.desired_pair_depth = float(pr.depth_db[i])
+                self._set_desired(s, float(b), exact=True)  # a new pair: its own width
+            else:
+                s.guaranteed = float(worst[i])
+                flip = s.desired_pair_depth > 0  # a pair becomes a single notch
+                s.desired_spread = s.desired_pair_depth = 0.0
+                self._set_desired(s, float(bw[i]), exact=flip)
 
-    def _set_desired(self, s: Slot, bw: float) -> None:
-        """Widen at once; narrow only by more than BANDWIDTH_HYSTERESIS (no churn)."""
+    def _keeps_pair(self, s: Slot, bw: float, i: int, lo: np.ndarray, hi: np.ndarray,
+                    zeta: np.ndarray, tc: np.ndarray, zc: np.ndarray) -> bool:
+        """A pair's new design only narrows it by less than BANDWIDTH_HYSTERESIS: it keeps the
+        pair it has (no churn) if that still meets the requirement over the new box (its worst
+        reduction there becomes the guarantee)."""
+        if not ((1.0 - BANDWIDTH_HYSTERESIS) * s.desired_bandwidth <= bw <= s.desired_bandwidth):
+            return False
+        f, zp, zz = self._form(np.array([tc[i]]), np.array([s.desired_bandwidth]),
+                               np.array([s.desired_spread]), np.array([s.desired_pair_depth]))
+        worst = float(R.worst_peak_reduction_db(lo[i:i + 1], hi[i:i + 1], zeta[i:i + 1], f, zp,
+                                                zz, self.fs, zeta_c=zc[i:i + 1])[0])
+        if worst < self.config.peak_reduction - R.DECISION_MARGIN_DB:
+            return False
+        s.guaranteed = worst
+        return True
+
+    def _design_pairs(self, slots: Sequence[Slot], boxes: np.ndarray, tc: np.ndarray,
+                      lo: np.ndarray, hi: np.ndarray, zeta: np.ndarray, zc: np.ndarray,
+                      zp: np.ndarray) -> R.PairDesign:
+        """The least lagging pair per slot (:func:`resonance.design_pair`). A box of the same
+        shape as at the slot's last search (``boxes``: h/f, zeta_hi, zeta_c, centre offset/f,
+        within :data:`PAIR_BOX_TOLERANCE`; e.g. one that only moved with its mode) tries the
+        spread found then alone (its pole damping solved again); the others, or where that no
+        longer meets the requirement, search all spreads."""
+        c = self.config
+        args = (c.peak_reduction, c.depth, self.fs)
+        n = len(slots)
+        factor = np.array([s.pair_factor for s in slots])
+        same = np.array([len(s.pair_box) == 4 and np.allclose(
+            boxes[i], s.pair_box, rtol=PAIR_BOX_TOLERANCE, atol=1e-4)
+            for i, s in enumerate(slots)]) & np.isfinite(factor)
+        out = {k: np.full(n, np.nan) for k in ("spread", "depth_db", "zp", "worst", "lag_deg",
+                                                "factor")}
+
+        def run(k: np.ndarray, factors: np.ndarray) -> None:
+            d = R.design_pair(tc[k], lo[k], hi[k], zeta[k], *args, zp[k],
+                              c.crossover_frequency, zeta_c=zc[k], factors=factors)
+            for name in out:
+                out[name][k] = getattr(d, name)
+
+        for q in np.unique(factor[same]):
+            run(np.flatnonzero(same & (factor == q)), np.array([q]))
+        cold = ~same | ~np.isfinite(out["lag_deg"])
+        if cold.any():
+            run(np.flatnonzero(cold), R.PAIR_SPREADS)
+            for i in np.flatnonzero(cold):
+                slots[i].pair_box = tuple(float(v) for v in boxes[i])
+                slots[i].pair_factor = float(out["factor"][i])
+        return R.PairDesign(**out)
+
+    def _set_desired(self, s: Slot, bw: float, exact: bool = False) -> None:
+        """Widen at once; narrow only by more than BANDWIDTH_HYSTERESIS (no churn; a single
+        notch at the same centre only gains from being wider); ``exact``: a new form (a pair's
+        new spread, or a change of form) takes its own width."""
         bw = float(np.clip(bw, self.config.bandwidth_min, self.config.bandwidth_max))
-        if bw > s.desired_bandwidth or bw < (1.0 - BANDWIDTH_HYSTERESIS) * s.desired_bandwidth:
-            if abs(bw - s.desired_bandwidth) > BANDWIDTH_HYSTERESIS * s.desired_bandwidth:
+        if (exact or bw > s.desired_bandwidth
+                or bw < (1.0 - BANDWIDTH_HYSTERESIS) * s.desired_bandwidth):
+            if exact or abs(bw - s.desired_bandwidth) > BANDWIDTH_HYSTERESIS * s.desired_bandwidth:
                 self.revision += 1
             s.desired_bandwidth = bw
 
-    def _lags(self, centres: np.ndarray, bws: np.ndarray) -> np.ndarray:
+    def _form(self, centres: np.ndarray, bws: np.ndarray, spreads: np.ndarray,
+              pair_depths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sections ``(centre, zp, zz)``, shape ``(..., n, 2)``, of notches of the given form
+        (bandwidths ``(..., n)``; pair depth 0: one section of ``depth``, the second a unit)."""
+        single = pair_depths <= 0
+        shape = np.where(single, self.config.depth, pair_depths)[..., None]
+        f = centres[..., None] + spreads[..., None] * np.array([-1.0, 1.0])
+        zp, zz = S.pole_zero_damping(f, bws[..., None], shape, self.fs)
+        return f, zp, np.where(single[..., None] & np.array([False, True]), zp, zz)
+
+    def _lags(self, centres: np.ndarray, bws: np.ndarray, spreads: np.ndarray,
+              pair_depths: np.ndarray) -> np.ndarray:
         """Summed phase lag [deg] at the crossover of notches (bandwidths ``(..., n)``)."""
-        c = self.config
-        zp, zz = S.pole_zero_damping(centres, bws, c.depth, self.fs)
-        return np.sum(S.damping_lag_deg(c.crossover_frequency, centres, zp, zz, self.fs),
-                      axis=-1)
+        f, zp, zz = self._form(centres, bws, spreads, pair_depths)
+        lag = S.damping_lag_deg(self.config.crossover_frequency, f, zp, zz, self.fs)
+        return np.sum(lag, axis=(-2, -1))
 
     def _apply_budget(self) -> None:
         """Hold the adaptive notches' total phase lag at the crossover within the budget (a
@@ -730,34 +843,41 @@ class RetuningPolicy:
             return
         f0 = np.array([s.target_center for s in tr])
         want = np.array([s.desired_bandwidth for s in tr])
+        spreads = np.array([s.desired_spread for s in tr])
+        pds = np.array([s.desired_pair_depth for s in tr])
         lo_bw = np.minimum(c.bandwidth_min, want)
         scale = 1.0
-        total = float(self._lags(f0, want))
+        total = float(self._lags(f0, want, spreads, pds))
         if total > c.phase_lag_budget and c.budget_priority == "phase_lag":
             self.budget_limited = True
             a, b = 0.0, 1.0
-            for _ in range(2):  # two passes of 64 scales: about 1/4000 of the range
+            for _ in range(3):  # three passes of 64 scales: about 1/250000 of the range
                 q = np.linspace(a, b, 64)
-                lags = self._lags(f0, lo_bw + q[:, None] * (want - lo_bw))
+                bws = lo_bw + q[:, None] * (want - lo_bw)
+                lags = self._lags(f0, bws, spreads * bws / want, pds)
                 k = int(np.searchsorted(lags, c.phase_lag_budget, side="right"))  # lag grows
                 a, b = q[max(k - 1, 0)], q[min(k, 63)]
             scale = a
-            total = float(self._lags(f0, lo_bw + scale * (want - lo_bw)))
+            bws = lo_bw + scale * (want - lo_bw)
+            total = float(self._lags(f0, bws, spreads * bws / want, pds))
         self.lag_deg = total
         narrowed = []
         for s, w, lb in zip(tr, want, lo_bw, strict=True):
             s.target_bandwidth = float(lb + scale * (w - lb))
+            s.target_spread = s.desired_spread * s.target_bandwidth / w  # a pair shrinks whole
+            s.target_split = 1.0 if s.desired_pair_depth > 0 else 0.0
+            if s.desired_pair_depth > 0:
+                s.target_pair_depth = s.desired_pair_depth
             if scale < 1.0 and math.isfinite(s.design[0]):
                 narrowed.append(s)
         if narrowed:  # what the narrowed notches still guarantee over their boxes
-            tc = np.array([s.target_center for s in narrowed])
-            zp, zz = S.pole_zero_damping(tc, np.array([s.target_bandwidth for s in narrowed]),
-                                         c.depth, self.fs)
+            f, zp, zz = self._form(*(np.array([getattr(s, a) for s in narrowed]) for a in (
+                "target_center", "target_bandwidth", "target_spread", "desired_pair_depth")))
             worst = R.worst_peak_reduction_db(
                 np.array([s.design[0] for s in narrowed]),
                 np.array([s.design[1] for s in narrowed]),
                 np.array([s.design[2] for s in narrowed]),
-                tc[:, None], zp[:, None], zz[:, None], self.fs,
+                f, zp, zz, self.fs,
                 zeta_c=np.array([s.design[4] for s in narrowed]))  # (grid: up to the depth)
             for s, w in zip(narrowed, worst, strict=True):
                 s.guaranteed = float(w)
@@ -880,10 +1000,12 @@ class RetuningPolicy:
         for i, s in enumerate(self.slots):
             fallback = i == last
             want_shape = c.fallback_depth if fallback else c.depth
+            form = (s.spread, s.split, s.pair_depth)
             if (s.depth <= 0 and s.target_depth <= 0 and s.center == s.target_center
-                    and s.bandwidth == s.target_bandwidth and s.shape_depth == want_shape):
+                    and s.bandwidth == s.target_bandwidth and s.shape_depth == want_shape
+                    and form == (s.target_spread, s.target_split, s.target_pair_depth)):
                 continue  # idle slot
-            before = (s.center, s.bandwidth, s.depth, s.shape_depth)
+            before = (s.center, s.bandwidth, s.depth, s.shape_depth) + form
             step_f = c.slew_rate * dt
             if fallback:
                 depth_rate = (c.fallback_depth / c.fallback_ramp if s.target_depth > s.depth
@@ -892,7 +1014,21 @@ class RetuningPolicy:
             else:
                 depth_rate = c.depth / c.fade_time
             s.center = _toward(s.center, s.target_center, step_f)
-            s.bandwidth = _toward(s.bandwidth, s.target_bandwidth, step_f)
+            # a notch widens at once (the bank spreads the change over the block): it must cover
+            # its mode's grown uncertainty now; it narrows at slew_rate
+            s.bandwidth = _toward(s.bandwidth, s.target_bandwidth,
+                                  math.inf if s.target_bandwidth > s.bandwidth else step_f)
+            if s.depth <= 0:  # not in the signal: take the form at once
+                s.spread, s.split = s.target_spread, s.target_split
+                s.pair_depth = s.target_pair_depth
+            else:  # a pair spreads like a bandwidth, fades in or out over fade_time
+                s.spread = _toward(s.spread, s.target_spread,
+                                   math.inf if s.target_spread > s.spread else step_f)
+                if s.split <= 0.0:  # no pair yet: its sections' depth is free
+                    s.pair_depth = s.target_pair_depth
+                s.split = _toward(s.split, s.target_split, dt / c.fade_time)
+                s.pair_depth = _toward(s.pair_depth, s.target_pair_depth,
+                                       max(depth_rate, 1e-9) * dt)
             s.depth = _toward(s.depth, s.target_depth, max(depth_rate, 1e-9) * dt)
             if s.depth <= 0:
                 s.shape_depth = want_shape
@@ -901,29 +1037,51 @@ class RetuningPolicy:
                                         max(c.depth, 1.0) / c.fade_time * dt)
             if not fallback:
                 s.center = min(max(s.center, lo), hi)
-            changed = changed or before != (s.center, s.bandwidth, s.depth, s.shape_depth)
+            changed = changed or before != (s.center, s.bandwidth, s.depth, s.shape_depth,
+                                            s.spread, s.split, s.pair_depth)
         if changed or self._params is None:
             self._params = self.params()
         return self._params
 
+    @property
+    def n_sections(self) -> int:
+        """Sections of the bank: two per adaptive notch (a pair), one for the fallback."""
+        return 2 * self.config.max_notches + 1
+
+    def sections(self, s: Slot) -> list[tuple[float, float, float, float]]:
+        """A slot's sections ``(centre, bandwidth, depth, shape depth)``: a single notch is
+        the first (the second bypassed, depth 0); a pair is two sections of ``pair_depth`` at
+        ``center -+ spread``, ``split`` fading from one form to the other; the fallback slot has
+        one section."""
+        if s is self.slots[-1]:
+            return [(s.center, s.bandwidth, s.depth, s.shape_depth)]
+        d = self.config.depth
+        on = s.depth / d if d > 0 else 0.0
+        a_depth = on * ((1.0 - s.split) * d + s.split * s.pair_depth)
+        a_shape = (1.0 - s.split) * s.shape_depth + s.split * s.pair_depth
+        b_shape = s.pair_depth if s.pair_depth > 0 else a_shape
+        return [(s.center - s.spread, s.bandwidth, a_depth, a_shape),
+                (s.center + s.spread, s.bandwidth, on * s.split * s.pair_depth, b_shape)]
+
     def params(self) -> S.SectionParams:
-        """Current section parameters (adaptive slots, then the fallback)."""
-        sl = self.slots
-        return S.SectionParams(
-            np.array([s.center for s in sl]),
-            np.array([s.bandwidth for s in sl]),
-            np.array([s.depth for s in sl]),
-            np.maximum(np.array([s.shape_depth for s in sl]), 3.5),
-        )
+        """Current section parameters (two per adaptive slot, then the fallback)."""
+        rows = np.array([r for s in self.slots for r in self.sections(s)], dtype=float)
+        return S.SectionParams(rows[:, 0], rows[:, 1], rows[:, 2], np.maximum(rows[:, 3], 3.5))
 
     def _active(self) -> list[Slot]:
         return [s for s in self.slots if s.depth > 0 or s.state in (TRACKING, HOLDING,
                                                                      PREDICTED)]
 
+    def _notches(self) -> list[tuple[Slot, tuple[float, float, float, float]]]:
+        """The active slots' sections in the signal (a pair's second once it fades in)."""
+        return [(s, r) for s in self._active() for i, r in enumerate(self.sections(s))
+                if i == 0 or r[2] > S.DEPTH_OFF_DB]
+
     def status(self) -> PolicyStatus:
-        """Active notches in cascade order, bank state, estimate age (cheap: every block)."""
-        notches = [NotchStatus(s.mode_id, s.state, s.center, s.bandwidth, s.depth, s.limit)
-                   for s in self._active()]
+        """Active notches (sections) in cascade order, bank state, estimate age (cheap: every
+        block); a pair is two notches following the same mode."""
+        notches = [NotchStatus(s.mode_id, s.state, r[0], r[1], r[2], s.limit, max(r[3], 3.5))
+                   for s, r in self._notches()]
         return PolicyStatus(notches, self.fallback_active, self.age(), self.budget_limited,
                             self.lag_deg, self.bank_state, self.reason)
 
@@ -931,7 +1089,7 @@ class RetuningPolicy:
         """Per active notch (status order): the peak reduction [dB] the whole bank as it is now
         gives the notch's mode, guaranteed over the mode's box at the current estimate age, and
         nominal (the estimate itself); NaN for notches without a mode (fallback)."""
-        act = self._active()
+        act = [s for s, _ in self._notches()]
         guaranteed = np.full(len(act), np.nan)
         nominal = np.full(len(act), np.nan)
         k = [i for i, s in enumerate(act) if s.mode_id > 0 and math.isfinite(s.f)

@@ -20,7 +20,8 @@ def identified(t, f, health=P.HEALTH_OK, predicted=None, converged=True):
 
 
 def run(pol, t0, t1, make, dt=0.1):
-    """Estimates from ``make(t)`` every dt, the policy advanced in between; notch log."""
+    """Estimates from ``make(t)`` every dt, the policy advanced in between; notch log (one
+    entry per notch, single or pair: its mode, state, centre and depth of presence)."""
     log = []
     t = t0
     while t < t1 - 1e-9:
@@ -29,8 +30,9 @@ def run(pol, t0, t1, make, dt=0.1):
             pol.set_estimate(e)
         pol.advance(t + dt, dt)
         t += dt
-        log.append((t, pol.bank_state, [(n.mode_id, n.state, n.center, n.depth)
-                                         for n in pol.status().notches]))
+        log.append((t, pol.bank_state, [(s.mode_id, s.state, s.center, s.depth)  # per notch
+                                         for s in pol.slots if s.depth > 0
+                                         or s.state != P.DISABLED]))
     return log
 
 
