@@ -1051,8 +1051,9 @@ class RetuningPolicy:
     def sections(self, s: Slot) -> list[tuple[float, float, float, float]]:
         """A slot's sections ``(centre, bandwidth, depth, shape depth)``: a single notch is
         the first (the second bypassed, depth 0); a pair is two sections of ``pair_depth`` at
-        ``center -+ spread``, ``split`` fading from one form to the other; the fallback slot has
-        one section."""
+        ``center -+ spread``; ``split`` fades from one form to the other, the sections moving
+        apart as the second deepens (at ``center -+ split spread``: the notch never leaves
+        its centre uncovered); the fallback slot has one section."""
         if s is self.slots[-1]:
             return [(s.center, s.bandwidth, s.depth, s.shape_depth)]
         d = self.config.depth
@@ -1060,8 +1061,9 @@ class RetuningPolicy:
         a_depth = on * ((1.0 - s.split) * d + s.split * s.pair_depth)
         a_shape = (1.0 - s.split) * s.shape_depth + s.split * s.pair_depth
         b_shape = s.pair_depth if s.pair_depth > 0 else a_shape
-        return [(s.center - s.spread, s.bandwidth, a_depth, a_shape),
-                (s.center + s.spread, s.bandwidth, on * s.split * s.pair_depth, b_shape)]
+        off = s.split * s.spread
+        return [(s.center - off, s.bandwidth, a_depth, a_shape),
+                (s.center + off, s.bandwidth, on * s.split * s.pair_depth, b_shape)]
 
     def params(self) -> S.SectionParams:
         """Current section parameters (two per adaptive slot, then the fallback)."""

@@ -9,6 +9,7 @@ from notch_filter_node.policy import EstimateInput, ModeInput, PolicyConfig
 from scipy import signal
 
 from notch_filter_node import policy as P
+from notch_filter_node import resonance as R
 from notch_filter_node import sections as S
 
 FS = 200.0
@@ -488,8 +489,9 @@ def test_late_notch_widens_after_data_time_went_back():
 
 def test_notch_widens_at_once_narrows_at_the_slew_rate_and_fades_into_a_pair():
     """A mode whose uncertainty grows gets its wider notch at once (it must be covered now), a
-    pair where that lags less: the second section fades in over fade_time, never a step; when
-    the uncertainty shrinks again the notch narrows at slew_rate."""
+    pair where that lags less: the second section fades in over fade_time, never a step, and
+    the mode stays 15 dB down meanwhile; when the uncertainty shrinks again the notch narrows
+    at slew_rate."""
     cfg = PolicyConfig(fallback_depth=0.0, stale_timeout=100.0, fallback_timeout=200.0,
                        phase_lag_budget=90.0, slew_rate=0.5)
     pol = P.RetuningPolicy(cfg, FS)
@@ -508,6 +510,11 @@ def test_notch_widens_at_once_narrows_at_the_slew_rate_and_fades_into_a_pair():
         if len(second) == 0:
             assert s.bandwidth == s.target_bandwidth and s.spread == s.target_spread
         second.append(pol.sections(s)[1][2])
+        c, bw, d, shape = (np.array(v) for v in zip(*pol.sections(s), strict=True))
+        on = d > S.DEPTH_OFF_DB
+        zp, zz = S.pole_zero_damping(c[on], bw[on], d[on], FS, shape[on])
+        # the mode stays covered while the second section fades in and the two move apart
+        assert R.peak_reduction_db(np.array(3.0), np.array(0.03), c[on], zp, zz, FS) >= 15.0
     assert s.target_split == 1.0 and s.guaranteed >= cfg.peak_reduction - 0.1
     steps = np.diff([0.0, *second])
     assert second[-1] == s.pair_depth == cfg.peak_reduction
