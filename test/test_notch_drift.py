@@ -19,8 +19,11 @@ uncertainty. benchmarks/notch_width_budget.py splits the width on this scenario 
 notch model's damping std ~ 22 % of the damping, calibrated: (estimate - truth)/std has a
 standard deviation of 0.7-1.0 on six draws) 1.7 x, + frequency (3 stds, ~ 1 % of the frequency,
 as large as half the mode's half-power band; not too large: during a drift the frequency lags,
-(estimate - truth)/std 1.2-7 on five of six draws) 2.1-2.4 x, + age/drift 2.5-2.9 x. Seed 2
-(3.6-4.4 Hz, 1.2 %) 1.9 x; seeds 1, 4, 5, 6 (9-40 Hz, frequency std 0.05-0.23 % of it) 1.1-1.3 x.
+(estimate - truth)/std 1.2-7 on five of six draws) 2.1-2.4 x, + age/drift 2.5-2.9 x with one
+notch; the bank's notch pair (resonance.design_pair) for the same region 1.8 x (over DDS
+1.87-1.89 x; 2.1 x the oracle pair, which lags about 8 % less than the oracle notch). Even
+without the damping and age terms a pair needs 1.56 x here: 1.5 x asks for a frequency std
+below about 0.8 % of the frequency on this mode.
 """
 
 from __future__ import annotations
@@ -75,7 +78,8 @@ def test_quiet_keeps_the_peak_15_db_down_in_99_percent(quiet):
 
 
 @pytest.mark.xfail(strict=False, reason="widths follow sysid's frequency/damping stds (calibrated "
-                   "or too small here, benchmarks/notch_width_budget.py); lag / oracle printed")
+                   "or too small here, benchmarks/notch_width_budget.py): a notch pair 1.9 x the "
+                   "oracle notch; lag / oracle printed")
 def test_quiet_phase_lag_within_1_5_x_the_oracle(quiet):
     assert quiet["lag_ratio_median"] <= 1.5, quiet
 
