@@ -155,7 +155,8 @@ def lag_of(center, zp, depth, fs, crossover) -> np.ndarray:
 
 def narrowest(center, f_lo, f_hi, zeta_hi, zeta_c, cfg, fs) -> np.ndarray:
     zp_min, _ = S.pole_zero_damping(center, np.full(center.shape, 1e-3), cfg["depth"], fs)
-    zp_max, _ = S.pole_zero_damping(center, np.full(center.shape, cfg["bandwidth_max"]),
+    widest = cfg["bandwidth_max"] if cfg["bandwidth_max"] > 0 else center  # policy.widest
+    zp_max, _ = S.pole_zero_damping(center, np.full(center.shape, widest),
                                     cfg["depth"], fs)
     zp, _ = R.design_zp(center, f_lo, f_hi, zeta_hi, cfg["peak_reduction"], cfg["depth"], fs,
                         zp_min, zp_max, passes=3, zeta_c=zeta_c)

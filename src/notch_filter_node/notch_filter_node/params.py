@@ -114,8 +114,9 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("bandwidth_min", float, _D.bandwidth_min, "Narrowest adaptive notch (-3 dB) [Hz]",
        lo=0.001, hi=10000.0, unit="Hz"),
     _p("bandwidth_max", float, _D.bandwidth_max,
-       "Widest adaptive notch (-3 dB); also used when the frequency std is unknown [Hz]",
-       lo=0.001, hi=10000.0, unit="Hz"),
+       "Widest adaptive notch (-3 dB); 0 = its centre frequency (the width a mode needs "
+       "scales with its frequency); also used when the frequency std is unknown [Hz]",
+       lo=0.0, hi=10000.0, unit="Hz"),
     _p("phase_lag_budget", float, _D.phase_lag_budget,
        "Largest total phase lag of the adaptive notches at crossover_frequency [deg]",
        lo=0.0, hi=180.0, unit="deg"),

@@ -23,7 +23,8 @@ standard error ``se``;
 ``age`` is the estimate's age, so a late estimate widens the notch by the drift the mode could have
 made since. A box is designed ahead, for the age plus ``max(design_horizon, half the time since the
 estimate arrived)``, and re-designed when the age outgrows it (a few times over a long gap, not at
-every block). Where no notch up to ``bandwidth_max`` reaches the requirement (a well-damped mode:
+every block). Where no notch up to ``bandwidth_max`` (0: the centre frequency) reaches the
+requirement (a well-damped mode:
 its peak is less than that above its static gain), the notch is the narrowest within 1 dB of the
 best such notch, and says so. With ``notch_pairs`` a notch is a pair of sections at
 ``centre -+ spread`` (``resonance.design_pair``: a flat-bottomed stop band) where that lags
@@ -172,7 +173,7 @@ class PolicyConfig:
     damping_max: float = 0.15  # [-] better damped modes get no notch
     min_relative_amplitude: float = 0.05  # [-] of the largest usable mode's amplitude
     bandwidth_min: float = 0.05  # [Hz]
-    bandwidth_max: float = 5.0  # [Hz]
+    bandwidth_max: float = 0.0  # [Hz], 0 = the notch's centre frequency
     phase_lag_budget: float = 10.0  # [deg] total of the adaptive notches at the crossover
     budget_priority: str = "phase_lag"  # or "peak_reduction": which gives way
     crossover_frequency: float = 0.5  # [Hz]
@@ -193,7 +194,7 @@ def check_config(c: PolicyConfig, fs: float = math.nan) -> str:
     """Cross checks of a configuration; '' if valid, else the reason."""
     if c.freq_max > 0 and c.freq_min >= c.freq_max:
         return f"freq_min={c.freq_min:g} Hz must be below freq_max={c.freq_max:g} Hz"
-    if c.bandwidth_min > c.bandwidth_max:
+    if 0 < c.bandwidth_max < c.bandwidth_min:
         return (f"bandwidth_min={c.bandwidth_min:g} Hz must not exceed "
                 f"bandwidth_max={c.bandwidth_max:g} Hz")
     if c.depth <= c.peak_reduction:
@@ -684,7 +685,6 @@ class RetuningPolicy:
     def _redesign(self, slots: Sequence[Slot], force: bool = False) -> bool:
         """Design the slots whose box outgrew (or undergrew) their design; True if any was
         (the caller then applies the budget)."""
-        c = self.config
         now = self.now if math.isfinite(self.now) else max(
             (s.stamp for s in slots if math.isfinite(s.stamp)), default=math.nan)
         todo = [s for s in slots if force or self._needs_design(s, self._slot_age(s, now))]
@@ -693,7 +693,7 @@ class RetuningPolicy:
             for s in unknown:  # no frequency std: the widest notch
                 s.design = (math.nan, math.nan, math.nan, s.target_center, math.nan)
                 s.guaranteed, s.limit = math.nan, "frequency std unknown"
-                self._set_desired(s, c.bandwidth_max)
+                self._set_desired(s, float(self.widest(s.target_center)))
             known = [s for s in todo if math.isfinite(s.f_std)]
             if known:
                 self._design(known, now)
@@ -708,9 +708,10 @@ class RetuningPolicy:
         zc = np.array([self._zeta_c(s) for s in slots])
         tc = np.array([s.target_center for s in slots])
         lo, hi = f - h, f + h
-        zp_min, _ = S.pole_zero_damping(tc, np.minimum(c.bandwidth_min, c.bandwidth_max),
-                                        c.depth, self.fs)
-        zp_max, _ = S.pole_zero_damping(tc, c.bandwidth_max, c.depth, self.fs)
+        widest = self.widest(tc)
+        zp_min, _ = S.pole_zero_damping(tc, np.minimum(c.bandwidth_min, widest), c.depth,
+                                        self.fs)
+        zp_max, _ = S.pole_zero_damping(tc, widest, c.depth, self.fs)
         zp, worst = R.design_zp(tc, lo, hi, zeta, c.peak_reduction, c.depth, self.fs,
                                 zp_min, zp_max, zeta_c=zc)
         short = worst < c.peak_reduction - R.DECISION_MARGIN_DB
@@ -732,7 +733,7 @@ class RetuningPolicy:
                                                             1.0 - PAIR_HYSTERESIS))
         for i, s in enumerate(slots):
             s.design = (float(lo[i]), float(hi[i]), float(zeta[i]), float(tc[i]), float(zc[i]))
-            s.limit = (f"at most {worst[i]:.1f} dB within bandwidth_max (damping "
+            s.limit = (f"at most {worst[i]:.1f} dB within the widest notch (bandwidth_max; damping "
                        f"{zeta[i]:.3f})" if short[i] else "")
             if pair[i]:
                 b = S.bandwidth_from_zp(tc[i], pr.zp[i], float(pr.depth_db[i]), self.fs)
@@ -799,11 +800,21 @@ class RetuningPolicy:
                 slots[i].pair_factor = float(out["factor"][i])
         return R.PairDesign(**out)
 
+    def widest(self, center: np.ndarray | float) -> np.ndarray:
+        """The widest notch [Hz] at ``center``: ``bandwidth_max``, or with 0 the centre
+        frequency itself (a width that scales with the mode: a 1 %-damped mode at 40 Hz
+        needs a notch about 4 Hz wide for 15 dB even when it is known exactly)."""
+        c = self.config
+        center = np.asarray(center, dtype=float)
+        if c.bandwidth_max > 0:
+            return np.full(center.shape, c.bandwidth_max)
+        return np.maximum(center, c.bandwidth_min)
+
     def _set_desired(self, s: Slot, bw: float, exact: bool = False) -> None:
         """Widen at once; narrow only by more than BANDWIDTH_HYSTERESIS (no churn; a single
         notch at the same centre only gains from being wider); ``exact``: a new form (a pair's
         new spread, or a change of form) takes its own width."""
-        bw = float(np.clip(bw, self.config.bandwidth_min, self.config.bandwidth_max))
+        bw = float(np.clip(bw, self.config.bandwidth_min, self.widest(s.target_center)))
         if (exact or bw > s.desired_bandwidth
                 or bw < (1.0 - BANDWIDTH_HYSTERESIS) * s.desired_bandwidth):
             if exact or abs(bw - s.desired_bandwidth) > BANDWIDTH_HYSTERESIS * s.desired_bandwidth:

@@ -103,7 +103,7 @@ def test_confident_estimate_gets_narrower_notch_and_keeps_peak_reduction(zeta):
         pol.advance(0.0, 0.0)
         s = pol.slots[0]
         lags.append(pol.lag_deg)
-        assert lags[-1] <= singles[-1] * (1.0 - P.PAIR_HYSTERESIS) or lags[-1] == singles[-1]
+        assert lags[-1] <= singles[-1] * (1.0 - P.PAIR_HYSTERESIS) + 1e-3 or lags[-1] == singles[-1]
         lo, hi, z_hi, centre, z_c = s.design
         assert centre == 3.0 and lo < 3.0 - cfg.sigma_k * std and hi > 3.0 + cfg.sigma_k * std
         assert z_hi == pytest.approx(zeta + cfg.damping_sigma_k * 0.002)
@@ -453,8 +453,8 @@ def test_well_damped_mode_gets_the_best_reachable_and_says_so():
     pol = P.RetuningPolicy(cfg, FS)
     pol.set_estimate(est(0.0, 3.0, zeta=0.087))
     (s,) = [s for s in pol.slots[:-1] if s.state == P.TRACKING]
-    assert s.guaranteed < cfg.peak_reduction and "within bandwidth_max" in s.limit
-    assert s.desired_bandwidth < cfg.bandwidth_max
+    assert s.guaranteed < cfg.peak_reduction and "bandwidth_max" in s.limit
+    assert s.desired_bandwidth < 3.0  # the widest notch: its centre frequency
     pol = P.RetuningPolicy(cfg, FS)
     pol.set_estimate(est(0.0, 3.0, zeta=0.12))
     assert not [s for s in pol.slots[:-1] if s.state == P.TRACKING]
