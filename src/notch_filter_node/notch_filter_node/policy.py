@@ -844,7 +844,8 @@ class RetuningPolicy:
         c = self.config
         tr = self._budgeted()
         key = (c, self.fs,
-               tuple((id(s), s.target_center, s.desired_bandwidth, s.design) for s in tr))
+               tuple((id(s), s.target_center, s.desired_bandwidth, s.desired_spread,
+                      s.desired_pair_depth, s.design) for s in tr))
         if key == self._budget_key:
             return  # nothing it depends on changed
         self._budget_key = key

@@ -212,7 +212,7 @@ def design_zp(
     f_hi: np.ndarray,
     zeta_hi: np.ndarray,
     required_db: float,
-    depth_db: float,
+    depth_db: float | np.ndarray,
     fs: float,
     zp_min: np.ndarray,
     zp_max: np.ndarray,
