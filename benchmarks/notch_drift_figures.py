@@ -57,11 +57,12 @@ from notch_filter_node import sections as S  # noqa: E402
 MATCH = 0.05  # an estimate tracks the mode when a tracked mode is within 5 % of it
 
 
-def scenario_files(seed: int, fs: float, duration: float, out: Path,
+def scenario_files(seed: int, fs: float | None, duration: float, out: Path,
                    extra: dict | None = None):
-    """Draw the scenario, write its bag, truth and the YAML for both nodes (``extra``: more
-    notch_filter_node parameters)."""
+    """Draw the scenario (``fs`` None: its sample rate too), write its bag, truth and the YAML
+    for both nodes (``extra``: more notch_filter_node parameters)."""
     scn = drifting_mode(np.random.default_rng(seed), fs=fs, duration_s=duration)
+    fs = scn.fs
     bag = out / "drifting_mode"
     write_signals(bag, {"/vibration": (START_TIME_S + scn.t, scn.y, ["acc_z[m/s^2]"]),
                         "/excitation": (START_TIME_S + scn.t, scn.u, ["force[N]"])})
