@@ -6,12 +6,11 @@ measures the true resonance times the bank at every 20 ms block (offline, no DDS
 numbers on any machine).
 
 Over the draws: every mode is tracked; the resonance peak is >= 15 dB down in at least 99 % of
-the blocks in the median draw; the bank's phase lag at the crossover is within 1.5 x the oracle
-notch's in the median draw. Open (xfail strict): every draw >= 95 % with no claim above what is
-delivered - on the fast drifts at 45-70 Hz sysid's frequency error exceeds its reported std
-several times (on benchmarks/notch_drift_figures.py --seed 4 the estimate stays at the start
-frequency for 2 s after the drift begins, with a 0.005 Hz std), and the bank's guarantee is
-built on that std.
+the blocks in the median draw and in at least 95 % in every draw; the bank's phase lag at the
+crossover is within 1.5 x the oracle notch's in the median draw. Open (xfail strict): no claim
+above what is delivered in any draw - at the onset of a fast drift (45-70 Hz) the identification
+has not seen the move yet and its frequency std is that of a still mode, and the bank's guarantee
+is built on that std (1-2 % of the blocks of three draws).
 """
 
 from __future__ import annotations
@@ -49,7 +48,11 @@ def test_median_draw_lags_within_1_5_x_the_oracle(suite):
     assert np.median([f["lag_ratio_median"] for f in suite]) <= 1.5, suite
 
 
-@pytest.mark.xfail(strict=True, reason="sysid's frequency std of a fast drift at 45-70 Hz is "
-                   "smaller than its error: the bank claims more than it gives")
-def test_every_draw_keeps_15_db_in_95_percent_and_claims_what_it_delivers(suite):
-    assert all(f["pr_share"] >= 0.95 and f["claimed_over_delivered_share"] == 0 for f in suite)
+def test_every_draw_keeps_15_db_in_95_percent(suite):
+    assert all(f["pr_share"] >= 0.95 for f in suite), suite
+
+
+@pytest.mark.xfail(strict=True, reason="at the onset of a fast drift sysid's frequency std is "
+                   "that of a still mode: the bank claims more than it gives in 1-2 % of blocks")
+def test_no_draw_claims_more_than_it_delivers(suite):
+    assert all(f["claimed_over_delivered_share"] == 0 for f in suite), suite

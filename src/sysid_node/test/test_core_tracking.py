@@ -106,3 +106,24 @@ def test_a_stray_realization_moves_the_median_report_not(report_hits):
     out = tr.update([_m(2.02)], 0.40)
     out = tr.update([_m(2.02)], 0.45)
     assert out[0].frequency_hz == pytest.approx(2.02, rel=1e-12)
+
+
+def _c(f, c):
+    return ModalParameters(f, 0.02, contribution=c, shape=np.array([1.0, 0.5], complex))
+
+
+def test_a_drifting_mode_is_followed_by_its_dominant_pole_not_its_memory():
+    """A realization over a drifting mode's memory splits it: a weak pole where the older data put
+    it (nearest to the track) and the dominant one where the recent data put it. The track
+    follows the dominant pole, opens no second track, and ignores a weak split pole."""
+    tr = ModeTracker(confirm_hits=1)
+    for k in range(5):
+        tr.update([_c(62.0, 100.0)], 0.1 * k)
+    out = tr.update([_c(62.2, 120.0), _c(63.4, 20.0)], 0.5)  # the new pole still weak
+    assert [round(t.frequency_hz, 3) for t in out] == [62.2]
+    out = tr.update([_c(62.3, 30.0), _c(63.6, 110.0)], 0.6)  # now dominant (> 2x)
+    assert [(t.id, round(t.frequency_hz, 3)) for t in out] == [(1, 63.6)]
+    out = tr.update([_c(62.4, 60.0), _c(63.8, 100.0)], 0.7)  # < 2x: the track keeps its pole
+    assert [(t.id, round(t.frequency_hz, 3)) for t in out] == [(1, 63.8)]
+    out = tr.update([_c(62.4, 90.0), _c(63.9, 60.0)], 0.8)  # nor does it go back under 2x
+    assert [(t.id, round(t.frequency_hz, 3)) for t in out] == [(1, 63.9)]

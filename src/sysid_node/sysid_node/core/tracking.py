@@ -36,6 +36,9 @@ from scipy.optimize import linear_sum_assignment
 from .modal import ModalParameters, mac
 
 STATUSES = ("tentative", "tracked", "lost")
+#: A split pole in a track's gate with this many times the contribution of the pole the
+#: assignment gave the track takes the track instead (:meth:`ModeTracker._dominant`).
+SPLIT_DOMINANCE = 2.0
 
 
 @dataclass
@@ -148,13 +151,20 @@ class ModeTracker:
             cost = np.array([[self._cost(tr, md) for md in modes] for tr in self.tracks])
             big = 1e6
             rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
-            for r, c in zip(rows, cols, strict=True):
-                if np.isfinite(cost[r, c]):
-                    self._hit(self.tracks[r], modes[c], t)
-                    matched.add(c)
+            pairs = {int(r): int(c) for r, c in zip(rows, cols, strict=True)
+                     if np.isfinite(cost[r, c])}
             # an unmatched mode inside the gate of a track that took another mode is a split of
             # that mode (two poles of an over-sized model on one physical mode): no new track
-            duplicate = set(np.flatnonzero(np.isfinite(cost).any(axis=0)).tolist()) - matched
+            duplicate = set(np.flatnonzero(np.isfinite(cost).any(axis=0)).tolist())
+            duplicate -= set(pairs.values())
+            for r, c in pairs.items():
+                d = self._dominant(self.tracks[r], c,
+                                   [d for d in duplicate if np.isfinite(cost[r, d])], modes)
+                duplicate.discard(d)
+                if d != c:
+                    duplicate.add(c)  # the track's other pole is now the split one
+                self._hit(self.tracks[r], modes[d], t)
+                matched.add(d)
         for c, md in enumerate(modes):
             if c not in matched and c not in duplicate:
                 tr = TrackedMode(
@@ -182,6 +192,29 @@ class ModeTracker:
         self.tracks = keep
         self._rank()
         return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
+
+    @staticmethod
+    def _dominant(tr: TrackedMode, c: int, split: list[int],
+                  modes: list[ModalParameters]) -> int:
+        """The pole the track follows among the one the assignment gave it (``c``) and the split
+        poles in its gate. On a drifting mode the realization holds the mode where the recent
+        data put it and a weaker pole where the memory's older data put it, and the pole nearest
+        the track's past is the old one: the track keeps the pole nearest its latest estimate
+        unless another has SPLIT_DOMINANCE times its contribution (the strongest such)."""
+        if not split:
+            return c
+        cand = [c, *split]
+        f_last = tr.history[-1][0] if tr.history else tr.reference[0]
+        keep = min(cand, key=lambda k: abs(modes[k].frequency_hz - f_last))
+        key = modes[keep].contribution
+        if not np.isfinite(key):
+            return c
+        best, top = keep, SPLIT_DOMINANCE * max(key, 0.0)
+        for d in cand:
+            kd = modes[d].contribution
+            if np.isfinite(kd) and kd > top:
+                best, top = d, kd
+        return best
 
     def _rank(self) -> None:
         """The max_tracked contract: confirmed tracks beyond the strongest ones are tentative."""
