@@ -3,7 +3,10 @@
 Each update matches the new modes to the existing tracks by a gated cost in frequency, damping
 and mode shape (MAC), solved as an assignment problem (``scipy.optimize.linear_sum_assignment``).
 Unmatched modes open tentative tracks, unless they fall inside the gate of a track that took
-another mode (a split of one physical mode). Two live tracks that come within the frequency and
+another mode (a split of one physical mode); of a split, the track keeps the pole nearest its
+latest estimate unless another has ``SPLIT_DOMINANCE`` times its contribution (a drifting mode:
+the dominant pole is where the recent data put it, the weak one the memory's older data). Two
+live tracks that come within the frequency and
 MAC gates and twice the damping gate of each other are merged into the one with more hits.
 Tentative tracks are confirmed after ``confirm_hits`` hits, in successive updates when
 ``consecutive`` (consistency across updates rejects spurious modes: a noise pole passes the
