@@ -6,8 +6,8 @@ Unmatched modes open tentative tracks, unless they fall inside the gate of a tra
 another mode (a split of one physical mode); of a split, the track keeps the pole nearest its
 latest estimate unless another has ``SPLIT_DOMINANCE`` times its contribution (a drifting mode:
 the dominant pole is where the recent data put it, the weak one the memory's older data). Two
-live tracks that come within the frequency and
-MAC gates and twice the damping gate of each other are merged into the one with more hits.
+live tracks that come within the frequency and MAC gates and twice the damping gate of each
+other are merged into the one with more hits.
 Tentative tracks are confirmed after ``confirm_hits`` hits, in successive updates when
 ``consecutive`` (consistency across updates rejects spurious modes: a noise pole passes the
 tests of a realization now and then, a physical one in a row); a track not seen for
@@ -39,8 +39,8 @@ from scipy.optimize import linear_sum_assignment
 from .modal import ModalParameters, mac
 
 STATUSES = ("tentative", "tracked", "lost")
-#: A split pole in a track's gate with this many times the contribution of the pole the
-#: assignment gave the track takes the track instead (:meth:`ModeTracker._dominant`).
+#: A split pole in a track's gate with this many times the contribution of the pole nearest
+#: the track's latest estimate takes the track instead (:meth:`ModeTracker._dominant`).
 SPLIT_DOMINANCE = 2.0
 
 
