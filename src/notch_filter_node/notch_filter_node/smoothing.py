@@ -29,6 +29,16 @@ window's length ``i / fs``; both carried by sysid_msgs/ModalEstimate) says two m
   ``(se_b lag)^2``. Without it the estimate of a drift sits several of its stds behind the mode
   once the memory is long (``benchmarks/notch_width_budget.py``).
 
+A drift that starts or stops inside the window bends the estimates, and the whole window's line
+then sits several of its stds off where it matters, at the latest estimate. The line through the
+window's recent half is fitted too; both are unbiased without a change and the whole window's is
+the more precise, so their difference has the variance ``se_half^2 - se_whole^2`` (Hausman's test
+for nested estimators). When it is more than :data:`CHANGE_SIGMAS` of that, the half's frequency is
+the model's, its variance grown by the same amount (a half taken by chance is off by more than its
+own se). The drift rate stays the whole window's: it only ages a late estimate, and a half
+window's rate, about three times as uncertain, would widen every late notch at once (a phase-lag
+spike at the crossover).
+
 With fewer than :data:`MIN_ESTIMATES` estimates, or a window spanning less than a quarter of
 its length, the latest estimate and its reported stds are used as they are, with no drift.
 """
@@ -42,6 +52,10 @@ import numpy as np
 
 #: Estimates a fit needs; fewer: the latest estimate as it is.
 MIN_ESTIMATES = 6
+#: The frequency of the line through the window's recent half replaces the whole window's
+#: when the two differ by more than this many standard deviations of their difference (the
+#: usual three-sigma rule; benchmarks/notch_drift_suite.py gives its effect).
+CHANGE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -88,20 +102,14 @@ def _n_eff(res: np.ndarray) -> float:
     return max(n * (1.0 - rho) / (1.0 + rho), 2.0)
 
 
-def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
-          zeta_std: np.ndarray, span: float, memory: float = math.nan,
-          lag: float = 0.0) -> ModeModel:
-    """The mode's model from its estimates over a window of length ``span`` [s] (arrays in time
-    order; NaN stds = unknown); ``memory`` [s] and ``lag`` [s]: the identifier's
-    (:func:`estimator_memory`; NaN / 0 = unknown). See the module docstring."""
-    t, f = np.asarray(t, dtype=float), np.asarray(f, dtype=float)
-    last = ModeModel(float(f[-1]), float(f_std[-1]), float(zeta[-1]), float(zeta_std[-1]))
-    if t.size < MIN_ESTIMATES or t[-1] - t[0] < 0.25 * span:
-        return last
+def _line(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, memory: float,
+          lag: float) -> tuple[float, float, float, float, float] | None:
+    """(frequency, its standard error, slope, slope error, n_eff) of the line through ``f(t)``
+    at the latest estimate plus ``lag`` (see the module docstring); None if it cannot be fitted."""
     tc = t - t.mean()
     sxx = float(tc @ tc)
     if sxx <= 0:
-        return last
+        return None
     slope = float(tc @ (f - f.mean())) / sxx
     res = f - f.mean() - slope * tc
     n, n_eff = t.size, _n_eff(res)
@@ -116,9 +124,39 @@ def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
     # estimates absorbs part of their error, so the scatter alone reads low)
     s2 = max(s2, rep_f**2) if math.isfinite(rep_f) else s2
     se_b = math.sqrt(s2 * inflate / sxx)
-    lag = lag if math.isfinite(lag) and lag > 0 else 0.0
     f_now += slope * lag  # the estimate lags its stamp: where the drift has taken the mode
-    se_f = math.sqrt(s2 * lever + (se_b * lag) ** 2)
+    return f_now, math.sqrt(s2 * lever + (se_b * lag) ** 2), slope, se_b, n_eff
+
+
+def model(t: np.ndarray, f: np.ndarray, f_std: np.ndarray, zeta: np.ndarray,
+          zeta_std: np.ndarray, span: float, memory: float = math.nan,
+          lag: float = 0.0) -> ModeModel:
+    """The mode's model from its estimates over a window of length ``span`` [s] (arrays in time
+    order; NaN stds = unknown); ``memory`` [s] and ``lag`` [s]: the identifier's
+    (:func:`estimator_memory`; NaN / 0 = unknown). See the module docstring."""
+    t, f = np.asarray(t, dtype=float), np.asarray(f, dtype=float)
+    f_std = np.asarray(f_std, dtype=float)
+    last = ModeModel(float(f[-1]), float(f_std[-1]), float(zeta[-1]), float(zeta_std[-1]))
+    if t.size < MIN_ESTIMATES or t[-1] - t[0] < 0.25 * span:
+        return last
+    lag = lag if math.isfinite(lag) and lag > 0 else 0.0
+    fit = _line(t, f, f_std, memory, lag)
+    if fit is None:
+        return last
+    recent = t >= t[-1] - 0.5 * span
+    if recent.sum() >= MIN_ESTIMATES and t[-1] - t[recent][0] >= 0.125 * span:
+        short = _line(t[recent], f[recent], f_std[recent], memory, lag)
+        # the drift changed within the window (a drift that starts or stops): the whole
+        # window's line is biased where it matters, its recent half is not. Without a change
+        # both are unbiased and the whole window's the more precise, so their difference has
+        # the variance se_half^2 - se_whole^2 (Hausman): a larger difference is the change
+        spread = math.sqrt(max(short[1] ** 2 - fit[1] ** 2, 0.0)) if short else math.inf
+        if short is not None and abs(short[0] - fit[0]) > CHANGE_SIGMAS * spread:
+            # its frequency, taken because it is far from the whole window's: that choice is
+            # part of its error (a half taken by chance on a steady drift is off by more than
+            # its se); the drift rate stays the whole window's (module docstring)
+            fit = (short[0], math.hypot(short[1], spread), *fit[2:])
+    f_now, se_f, slope, se_b, n_eff = fit
     z = np.asarray(zeta, dtype=float)
     z = z[np.isfinite(z)]
     if z.size >= MIN_ESTIMATES:

@@ -4,6 +4,7 @@ stated uncertainty about as often as a Gaussian's, and are smaller than the raw 
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from notch_filter_node import smoothing as SM
 
@@ -98,3 +99,44 @@ def test_identifier_lag_and_memory_make_a_drift_model_calibrated():
 def test_estimator_memory_from_the_estimate_fields(lam, fs, rows, tau, lag):
     got = SM.estimator_memory(lam, fs, rows)
     assert got == pytest.approx((tau, lag), rel=1e-3, nan_ok=True)
+
+
+def onset_draws(seed, n_runs=200):
+    """A still mode that starts to drift 1 s before the latest estimate (4 s window, 10 Hz,
+    AR(1) errors of a 0.5 s memory), and still modes: (drift, model arguments, truth)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 4.0, 0.1)
+    rho = np.exp(-0.1 / 0.5)
+    for drift in (True, False):
+        for _ in range(n_runs):
+            f0, sf = rng.uniform(5, 80), 0.002 * rng.uniform(0.5, 1.0)
+            rate = rng.choice([-1.0, 1.0]) * rng.uniform(0.02, 0.05) * f0 if drift else 0.0
+            x = rng.normal(size=t.size)  # e_k = rho e_k-1 + sqrt(1 - rho^2) x_k, e_0 = x_0
+            b = np.sqrt(1 - rho**2)
+            e = lfilter([b], [1.0, -rho], x, zi=[(1.0 - b) * x[0]])[0]
+            truth = f0 + rate * np.maximum(t - 3.0, 0.0)
+            f = truth + sf * f0 * e
+            yield drift, (t, f, np.full(t.size, sf * f0), np.full(t.size, 0.02),
+                          np.full(t.size, 0.002)), truth[-1]
+
+
+def test_a_drift_that_starts_inside_the_window_is_not_averaged_away(monkeypatch):
+    """Two memories after a drift starts, the whole window's line is dragged towards the still
+    mode, its error about twice its stated std; the recent half's line, taken when the two
+    differ beyond their nested-estimator spread, halves the error and stays within 2 stated stds.
+    On still modes the half is taken rarely: the precision and the calibration hold."""
+    def fits(sigmas):
+        monkeypatch.setattr(SM, "CHANGE_SIGMAS", sigmas)
+        out = {True: [], False: []}
+        for drift, args, f_true in onset_draws(5):
+            m = SM.model(*args, 4.0, 0.5, 0.0)
+            out[drift].append((abs(m.frequency - f_true) / m.frequency_std,
+                               abs(m.frequency - f_true), m.frequency_std))
+        return {k: np.array(v) for k, v in out.items()}
+
+    with_, without = fits(SM.CHANGE_SIGMAS), fits(np.inf)
+    assert np.mean(without[True][:, 0] <= 2.0) < 0.7
+    assert np.mean(with_[True][:, 0] <= 2.0) >= 0.9
+    assert np.median(with_[True][:, 1]) < 0.6 * np.median(without[True][:, 1])
+    assert np.mean(with_[False][:, 0] <= 2.0) >= 0.9
+    assert np.median(with_[False][:, 2]) < 1.05 * np.median(without[False][:, 2])
