@@ -32,6 +32,11 @@ AUTO_WINDOW_ROWS = 140
 #: ... and reach up to this many to span half a period of the lowest mode (the automatic band's
 #: lowest peak; the RLS costs the square of the rows per sample, a realization their cube).
 MAX_AUTO_WINDOW_ROWS = 280
+#: A configured band's window grown for its lowest lightly damped mode keeps at most this many
+#: output rows l i in its future block: the eigendecomposition of that block's projection
+#: (cube of l i) is the largest cost of a realization, and 70 is the automatic window's l i
+#: for five outputs (14 block rows), so no grown window costs more than that one.
+MAX_GROWN_FUTURE_ROWS = 70
 #: Lowest mode assumed while the automatic band is being chosen [Hz]: a window of 0.35 s, the
 #: seed example's 35 block rows at 100 Hz (Sec. II; its lowest mode is at 2 Hz).
 INITIAL_LOW_HZ = 1.0 / 0.7
@@ -72,8 +77,11 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Hankel block rows i of the recursive DSRA (A1) [-]; 0 = auto: about "
        f"{AUTO_WINDOW_ROWS} rows in the stacked window 2 i (m + l) (35 for 1 input + 1 output, "
        "10 for 1 + 6), enough for the model order, and with the automatic band (freq_max 0) "
-       "enough to span half a period of its lowest peak (0.35 s until the band is chosen; up "
-       f"to {MAX_AUTO_WINDOW_ROWS} rows)", "structural", lo=0, hi=200),
+       "enough to span half a period of its lowest peak (0.35 s until the band is chosen), "
+       "with a configured band a full period of its lowest lightly damped (<= 5 %) confirmed "
+       f"mode (checked every 2 s; it only grows; at most {MAX_GROWN_FUTURE_ROWS} / l block "
+       f"rows); up to {MAX_AUTO_WINDOW_ROWS} rows",
+       "structural", lo=0, hi=200),
     _p("max_order", int, 0,
        "Model order of the realization; 0 = auto: 2 x max_modes, and with a configured band "
        "(freq_max > 0) grown to 2 x the larger of max_modes and twice the confirmed mode "
@@ -323,6 +331,19 @@ def effective_max_order(values: dict[str, Any], n_peaks: int, top: int) -> int:
     if k > 0:
         return min(k, top)
     return min(2 * max(int(values.get("max_modes", 10)), ORDER_PER_PEAK * int(n_peaks)), top)
+
+
+def period_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
+                      mode_hz: float) -> int:
+    """A configured band's block rows: ``effective_block_rows``, grown for the Hankel window to
+    span a full period of ``mode_hz`` [Hz] (its lowest lightly damped confirmed mode; NaN: not
+    grown) at the identification rate ``fs`` [Hz], up to MAX_AUTO_WINDOW_ROWS stacked rows and
+    MAX_GROWN_FUTURE_ROWS output rows l i."""
+    base = effective_block_rows(values, n_outputs, n_inputs)
+    if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(mode_hz) and mode_hz > 0):
+        return base
+    want = effective_block_rows(values, n_outputs, n_inputs, fs, 0.5 * mode_hz)
+    return max(base, min(want, MAX_GROWN_FUTURE_ROWS // max(n_outputs, 1)))
 
 
 def max_auto_rows(n_outputs: int, n_inputs: int) -> int:

@@ -1,6 +1,7 @@
 """A wide automatic band splits in two (issue #10): ``core.band.split_frequency``,
 ``params.window_capped`` and the pipeline's second estimator (``low_band.py``); a configured
-band's order makes room for its confirmed modes as the low group's does for its peaks."""
+band's order makes room for its confirmed modes as the low group's does for its peaks, and its
+window spans a full period of its lowest lightly damped one."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 from scipy import signal
 from sysid_node.core.band import BandChoice, split_frequency, structure_band
 from sysid_node.low_band import max_split_hz
+from sysid_node.scenarios.draw import drifting_mode
 from sysid_node.suite import T0_NS as T0
 from sysid_node.suite import run_output_only
 
@@ -151,3 +153,21 @@ def test_an_order_with_room_or_a_configured_one_is_left_as_it_is(wide_record):
         pl, _ = run_output_only(y, FS, params, 40, logs.append)
         assert not any("confirmed modes" in m for m in logs), (params, logs)
         assert pl.estimator.max_order == (params.get("max_order") or 20)
+
+
+@pytest.mark.parametrize(("damping", "grows"), [(0.02, True), (0.15, False)])
+def test_a_configured_band_window_spans_its_lowest_lightly_damped_mode(damping, grows):
+    """200 Hz, band 0-60 Hz: a 2.5 Hz mode is 80 samples long, the automatic window 35 rows.
+    Lightly damped, it widens the window towards a full period, to the 70 rows of the cost
+    budget (one rebuild from the raw data); well damped, like the rigid-body response below it
+    (5-30 %), it does not size the window."""
+    scn = drifting_mode(np.random.default_rng(4), fs=200.0, duration_s=12.0, frequency_hz=2.5,
+                        drift=0.0, damping=damping)
+    logs: list[str] = []
+    pl, recs = run_output_only(scn.y, scn.fs, {"freq_max": 60.0}, 40, logs.append)
+    assert any(abs(m.frequency_hz / 2.5 - 1) < 0.02 for m in recs[-1].modes), recs[-1].modes
+    rows = [m for m in logs if "block rows 35 ->" in m]
+    if grows:
+        assert pl.block_rows == 70 and len(rows) == 1, logs  # l i <= 70 (80 would span it)
+    else:
+        assert pl.block_rows == 35 and not rows, logs

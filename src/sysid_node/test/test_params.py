@@ -154,3 +154,22 @@ def test_auto_block_rows_span_half_a_period_of_the_lowest_peak(outputs, inputs, 
     assert 2 * got * (outputs + inputs) <= max(P.MAX_AUTO_WINDOW_ROWS, 2 * 35 * (outputs + inputs))
     assert P.effective_block_rows({**P.defaults(), "block_rows": 12}, outputs, inputs, fs,
                                   low) == 12  # a configured value is kept
+
+
+@pytest.mark.parametrize(
+    ("outputs", "inputs", "fs", "mode", "rows"),
+    [(1, 1, 200.0, 2.6, 70),  # a full period is 77 rows: 70 output rows l i at most
+     (1, 1, 200.0, 4.0, 50),  # a full period
+     (1, 1, 200.0, 10.0, 35),  # the automatic window spans it already
+     (6, 1, 500.0, 2.0, 11),  # 250 rows asked: 70 // 6
+     (5, 0, 128.0, 1.2, 14),  # the automatic 14 rows have l i = 70 already
+     (1, 1, 200.0, float("nan"), 35)],  # no mode: the automatic window
+)
+def test_a_configured_band_window_spans_a_full_period_within_its_cost(outputs, inputs, fs,
+                                                                     mode, rows):
+    got = P.period_block_rows(P.defaults(), outputs, inputs, fs, mode)
+    assert got == rows
+    assert got * outputs <= max(P.MAX_GROWN_FUTURE_ROWS, outputs * P.effective_block_rows(
+        P.defaults(), outputs, inputs))
+    assert P.period_block_rows({**P.defaults(), "block_rows": 12}, outputs, inputs, fs,
+                               mode) == 12  # a configured value is kept
