@@ -438,7 +438,8 @@ class Pipeline:
         if not self._voted("_order_votes", order > self.estimator.max_order or more_rows):
             return
         fmin, fmax = self.band
-        self.log(f"band {fmin:g}-{fmax:g} Hz holds {k} confirmed modes (lowest {f_low:.4g} Hz): "
+        self.log(f"band {fmin:g}-{fmax:g} Hz holds {k} confirmed modes (lowest lightly damped "
+                 f"{f_low:.4g} Hz): "
                  f"model order {self.estimator.max_order} -> {max(order, self.estimator.max_order)}"
                  f", block rows {self.block_rows} -> {max(rows, self.block_rows)}")
         self._band_modes = max(k, self._band_modes)
@@ -915,9 +916,10 @@ BAND_CHECK_PERIOD_S = 2.0
 #: A configured band's window grows when its lowest lightly damped confirmed mode asks this
 #: many times the rows it has (one rebuild, not one per step of a drifting mode).
 ROWS_GROWTH = 1.25
-#: Lightly damped: the modes whose frequency a short Hankel window blurs more than their own
-#: half-power band (2 zeta f) does; a well-damped mode (a rigid-body response) does not size
-#: the window.
+#: Lightly damped (the structural modes notches are for): a window spanning their period
+#: sharpens their frequency. A well-damped response (a rigid-body mode) does not size the
+#: window: sized by one, the fast drifts of the mode above it were followed worse
+#: (benchmarks/notch_drift_suite.py draws 5 and 13).
 LIGHT_DAMPING = 0.05
 BAND_CHECK_WINDOW_S = 10.0
 WIDEN_FRACTION = 0.85
