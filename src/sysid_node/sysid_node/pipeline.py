@@ -137,13 +137,13 @@ class Pipeline:
         fs = self.identification_rate
         fmin, fmax = self.band
         self.estimator_band_max = fmax
-        # while the automatic band is being chosen the lowest mode is unknown: the window of the
-        # seed example (P.INITIAL_LOW_HZ), within the row budget
-        low = (self.band_low if math.isfinite(self.band_edge) or not self.auto_band
-               else P.INITIAL_LOW_HZ)
-        self.block_rows = (P.effective_block_rows(v, n_outputs, n_inputs, fs, low)
-                           if self.auto_band else
-                           P.period_block_rows(v, n_outputs, n_inputs, fs, self._rows_low))
+        if self.auto_band:
+            # while the automatic band is being chosen the lowest mode is unknown: the window of
+            # the seed example (P.INITIAL_LOW_HZ), within the row budget
+            low = self.band_low if math.isfinite(self.band_edge) else P.INITIAL_LOW_HZ
+            self.block_rows = P.effective_block_rows(v, n_outputs, n_inputs, fs, low)
+        else:  # a configured band: grown for its lowest lightly damped mode (_recount_modes)
+            self.block_rows = P.period_block_rows(v, n_outputs, n_inputs, fs, self._rows_low)
         top = n_outputs * (self.block_rows - 1)  # largest order the Hankel rows allow
         max_order = min(v["max_order"], top) if v["max_order"] else None
         if max_order is None and self._band_modes:  # a configured band's modes
