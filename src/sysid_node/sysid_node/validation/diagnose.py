@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import gates as G
+from . import residuals as rs
 from .assess import Assessment, compare_primary, primary_error
 from .augment import ModelSpec
 from .data import ValidationData, ValidationError
@@ -130,6 +131,9 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
     failing model); the drop's p-value must then be under P_DROP / n_tried."""
     params = dict(h.parameters)
+    if h.effect == "feedback":
+        _confirm_feedback(h, ctx, spec, n_tried)
+        return
     if h.effect == "input_delay":
         d = delay_estimate(ctx, spec, params.get("peak_lag", 0))
         if d is None:
@@ -174,6 +178,39 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     h.significant = bool(
         gate and cmp.p_value < P_DROP / n_tried and cmp.drop >= MIN_DROP and consistent
     )
+
+
+def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int) -> None:
+    """Feedback changes what the input is, not how the plant maps it to the output: an
+    open-loop model predicts the output as well as the loop model on data from the same loop
+    (its bias is the best causal fit of that data). What the loop explains is the measured
+    input: the score is the drop of the input's held-out one-step error when past outputs join
+    its own past (:func:`.gates.input_prediction`). The trial model is the joint input-output
+    model (its plant is free of the loop's bias)."""
+    ip = ctx.fitted.get(("feedback", "input"))
+    if ip is None:
+        return
+    cmp = rs.compare_errors(ip.open_error, ip.loop_error, rank_batches=40)
+    h.score, h.drop_p = max(0.0, cmp.drop), cmp.p_value
+    fm, why = _refit(ctx, spec, "feedback", {})
+    what = "free-run" if ctx.assessment.primary == "free_run" else "one-step"
+    if fm is not None:
+        h.trial = fm
+        _parameters(h, ctx, fm, {})
+        out = compare_primary(ctx.assessment, primary_error(fm, ctx.data, ctx.split,
+                                                            ctx.assessment.primary))
+        model_note = f"the loop model's output {what} error changes by {-100 * out.drop:+.0f} %"
+    else:
+        model_note = f"no loop model: {why}"
+    h.trial_note = (
+        f"past outputs lower the held-out one-step error of input {ip.input} by "
+        f"{100 * cmp.drop:.0f} % against its own past (p={cmp.p_value:.1e}); {model_note}"
+    )
+    h.evidence += "; " + h.trial_note
+    if h.p_value >= G.P_GATE:
+        h.trial_note += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
+    gate = h.p_value < G.P_GATE or n_tried > 1
+    h.significant = bool(gate and cmp.p_value < P_DROP / n_tried and cmp.drop >= MIN_DROP)
 
 
 def delay_estimate(ctx: Context, spec: ModelSpec, peak_lag: int) -> float | None:
@@ -250,7 +287,7 @@ def _parameters(h: Hypothesis, ctx: Context, fm: FittedModel, params: dict) -> t
         c = data.n_outputs + data.n_inputs
         gy = np.abs(fm.controller[:, 0]).reshape(-1, c)[:, : data.n_outputs].max(axis=1)
         lag = int(np.argmax(gy)) + 1
-        h.parameters = {"lag": lag, "lag_s": lag / data.fs, "lags_fitted": len(gy)}
+        h.parameters.update(lag=lag, lag_s=lag / data.fs, lags_fitted=len(gy))
     elif eff == "nonlinear_stiffness":
         h.parameters["cubic_gain"] = fm.cubic_gain()
     return True, ""

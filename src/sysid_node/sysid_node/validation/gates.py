@@ -11,10 +11,10 @@ input_delay            residual correlated with past inputs (cross-correlation p
 nonlinear_stiffness    residual correlated with the cubic Hermite term of an output
                        (higher-order correlation test)
 sensor_bias            non-zero mean or trend of the model's error (t-tests on block means)
-feedback               the model's innovations predicting the input beyond the input's own past
-                       and the model's free run (conditional Granger F-test): a coloured,
-                       multisine or swept input in open loop is predictable from its own past,
-                       never from the output noise
+feedback               past outputs predicting the input beyond the input's own past and the
+                       model's free run (conditional Granger F-test, fitted per estimation
+                       segment): a coloured, multisine or swept input in open loop is
+                       predictable from its own past, never from the output noise
 =====================  =======================================================================
 
 Each gate returns a :class:`Hypothesis` with its p-value, evidence and parameters; the trial
@@ -43,7 +43,9 @@ from .simulation import (
 from .split import Split
 
 P_GATE = 1e-2
-FEEDBACK_ERROR_LAGS = 5  # innovation lags of the feedback test
+FEEDBACK_ERROR_LAGS = 5  # innovation lags of the closed-loop test before any model
+FEEDBACK_OUTPUT_LAGS = 5  # output lags of the feedback gate (a controller's delay)
+INPUT_LAGS = (4, 8, 16, 32)  # candidate numbers of the input's own lags (feedback test)
 #: Closed loop for the choice of the scored prediction: past innovations explain at least 10 %
 #: of the input's variance left by its own past (a model error that is a function of the input
 #: leaks a little into the innovations; a controller puts a large share there).
@@ -738,27 +740,119 @@ def _fill(e: np.ndarray, rows: np.ndarray, a: int, b: int) -> np.ndarray:
     return out
 
 
+@dataclass
+class InputPrediction:
+    """:func:`input_prediction` for the input whose loop is most significant."""
+
+    input: int
+    f: float
+    p_value: float  # F-test on the estimation samples (Bonferroni over the inputs)
+    share: float  # of the input's unpredictable part that past outputs explain
+    open_error: np.ndarray  # validation error of the input from its own past
+    loop_error: np.ndarray  # ... and from past outputs too
+    u_lags: int
+
+
+def input_prediction(
+    ctx: Context, u_lags: int | None = None, y_lags: int = FEEDBACK_OUTPUT_LAGS
+) -> InputPrediction | None:
+    """Predict the measured input one step ahead from its own past (what an exogenous input
+    allows) and, in the loop model, from the past outputs too (what a controller adds); the
+    model's free run is a regressor of both, so only the outputs' part that the input does not
+    drive can help (in open loop that part is noise, independent of the input).
+
+    Both are least squares on each estimation segment and scored on the validation segment
+    that follows it: a swept input (and a Schroeder multisine, a sweep within its period) is
+    predictable from its own past only locally. Regressors are lags of the whole record, so
+    an interleaved split's blocks keep their true time lags. ``u_lags`` None: the number of
+    the input's own lags (:data:`INPUT_LAGS`) that predicts it best on the last 30 % of each
+    estimation segment from the first 70 % (the best open-loop predictor, so that the loop's
+    gain is not measured against an over-fitted one).
+    """
+    if u_lags is None:
+        inner = ctx.split.inner(0.3)
+        errs = []
+        for lags in INPUT_LAGS:
+            ip = input_prediction(replace(ctx, split=inner), lags, y_lags)
+            errs.append(np.inf if ip is None else float(np.mean(ip.open_error**2)))
+        if not np.isfinite(min(errs)):
+            return None
+        u_lags = INPUT_LAGS[int(np.argmin(errs))]
+    data, split, a = ctx.data, ctx.split, ctx.assessment
+    u = data.u
+    blocks = [np.ones((data.n, 1)), lagged(u, u_lags)]
+    if a.simulation is not None and np.all(np.isfinite(a.simulation)):
+        blocks.append(lagged(a.simulation, y_lags))
+    x_r = _unit_columns(np.hstack(blocks))  # the input's own past: local coefficients
+    x_l = _unit_columns(lagged(data.y, y_lags))  # what a controller feeds back
+    k0 = max(u_lags, y_lags)
+    est_runs = split.est_segments
+    pairs = []
+    for va, vb in split.val_segments:
+        before = [r for r in est_runs if r[1] <= va]
+        ea, eb = before[-1] if before else est_runs[0]
+        est = np.arange(max(ea, k0), eb)
+        val = np.arange(max(va, k0), vb)
+        if est.size > x_r.shape[1] + x_l.shape[1] and val.size:
+            pairs.append((est, val))
+    if not pairs:
+        return None
+    q = x_l.shape[1] * len(pairs)
+    dof = sum(est.size - x_r.shape[1] - x_l.shape[1] for est, _ in pairs)
+    if dof < 1:
+        return None
+    x_f = np.hstack([x_r, x_l])
+    best = None
+    for j in range(u.shape[1]):
+        ss_r = ss_f = tot = 0.0
+        open_e, loop_e = [], []
+        for est, val in pairs:
+            th_r = rs.lstsq(x_r[est], u[est, j])
+            th_f = rs.lstsq(x_f[est], u[est, j])
+            ss_r += float(np.sum((u[est, j] - x_r[est] @ th_r) ** 2))
+            ss_f += float(np.sum((u[est, j] - x_f[est] @ th_f) ** 2))
+            tot += float(np.sum(u[est, j] ** 2))
+            open_e.append(u[val, j] - x_r[val] @ th_r)
+            loop_e.append(u[val, j] - x_f[val] @ th_f)
+        if ss_r <= 1e-12 * tot:  # the input's own past predicts it: no room for a loop
+            f, p, share = 0.0, 1.0, 0.0
+        else:
+            f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
+            p, share = float(stats.f.sf(f, q, dof)), (ss_r - ss_f) / ss_r
+        cand = InputPrediction(
+            j, float(f), float(min(1.0, p * u.shape[1])), float(share),
+            np.concatenate(open_e), np.concatenate(loop_e), u_lags,
+        )
+        if best is None or cand.p_value < best.p_value:
+            best = cand
+    return best
+
+
+def _unit_columns(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
+
+
 def feedback(ctx: Context) -> Hypothesis:
-    """Innovations of the model predicting the input beyond the input's own past."""
+    """Past outputs predicting the input beyond the input's own past and the model's free run
+    (:func:`input_prediction`): the gate is its F-test on the estimation samples; the input's
+    error on the validation samples is what the trial scores."""
     h = Hypothesis("feedback")
     if not ctx.data.n_inputs:
         h.evidence = "output-only data: no input"
         return h
-    a = ctx.assessment
-    u = ctx.data.u[ctx.split.val]
-    z = None
-    if a.simulation is not None:
-        z = a.simulation[ctx.split.val]
-    u_lags = max(10, 2 * ctx.current.spec.block_rows)
-    f, p, share = conditional_granger(u, ctx.e, z, u_lags, FEEDBACK_ERROR_LAGS)
+    ip = input_prediction(ctx)
+    if ip is None:
+        h.evidence = "no estimation segment long enough for the input's prediction"
+        return h
+    ctx.fitted[("feedback", "input")] = ip
     # the gate: significant AND a material share (a model error that is a function of the
     # input leaks a little into the innovations; a controller puts a large share there)
-    h.p_value = p if share >= CLOSED_LOOP_SHARE else max(p, P_GATE)
-    h.parameters = {"share": share}
+    h.p_value = ip.p_value if ip.share >= CLOSED_LOOP_SHARE else max(ip.p_value, P_GATE)
+    h.parameters = {"share": ip.share, "input": ip.input}
     h.evidence = (
-        f"past innovations predict the input beyond its own past ({u_lags} lags) and the "
-        f"model's free run: {100 * share:.1f} % of its unpredictable part (gate: >= "
-        f"{100 * CLOSED_LOOP_SHARE:.0f} %), F={f:.2f}, p={p:.1e}"
+        f"past outputs predict input {ip.input} beyond its own past ({ip.u_lags} lags) and "
+        f"the model's free run: {100 * ip.share:.1f} % of its unpredictable part (gate: >= "
+        f"{100 * CLOSED_LOOP_SHARE:.0f} %), F={ip.f:.2f}, p={ip.p_value:.1e}"
     )
     return h
 

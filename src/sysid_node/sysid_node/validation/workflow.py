@@ -158,7 +158,10 @@ def run_validation(data: ValidationData, opts: Options, source: str = "") -> Out
                 break
             cand = assess(top.trial, data, split, opts.max_lag, primary=before.primary)
             cmp = compare_primary(cur_a, cand.primary_error)
-            if cmp.drop < AUTO_MIN_GAIN or cmp.p_value >= P_DROP:
+            if top.effect == "feedback":  # its gain is the input's error (diagnose), the
+                if cmp.drop <= -AUTO_MIN_GAIN:  # output's must not rise
+                    break
+            elif cmp.drop < AUTO_MIN_GAIN or cmp.p_value >= P_DROP:
                 break
             steps.append(_step([*added, top.effect], cur_a, cand))
             current, cur_a = top.trial, cand

@@ -1,0 +1,61 @@
+"""feedback's gate and score (validation.gates.input_prediction, diagnose._confirm_feedback):
+under a swept or Schroeder-multisine reference the input is predictable from its own past only
+locally, so the input's predictors are fitted per estimation segment; a controller makes the
+past outputs predict what is left, an open loop does not (drawn cases of the hidden-effect
+suite, each with its clean counterpart of the same input kind)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sysid_node.validation import gates as G
+from sysid_node.validation import suite as S
+from sysid_node.validation.diagnose import MIN_DROP, P_DROP
+from sysid_node.validation.gates import Context
+from sysid_node.validation.workflow import Options, run_validation
+
+CLOSED = {"sweep": 1106003, "multisine": 1106002}  # feedback draws of the suite
+OPEN = {"sweep": 1199003, "multisine": 1199002}  # clean draws, same input kinds
+
+
+def _run(effect: str | None, seed: int, kind: str):
+    sc = S.draw(effect, seed, kind)
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    return out, next(h for h in out.hyps if h.effect == "feedback")
+
+
+@pytest.mark.parametrize("kind", list(CLOSED))
+def test_a_loop_under_a_swept_reference_is_found_and_scored_on_the_input(kind):
+    out, h = _run("feedback", CLOSED[kind], kind)
+    assert out.split.mode == "interleaved"  # the case the per-segment fits are for
+    assert h.p_value < G.P_GATE and h.parameters["share"] >= G.CLOSED_LOOP_SHARE
+    assert h.significant and h.score >= MIN_DROP and h.drop_p < P_DROP
+    assert "held-out one-step error of input 0" in h.trial_note
+    assert out.hyps[0].effect == "feedback"
+
+
+@pytest.mark.parametrize("kind", list(OPEN))
+def test_the_same_input_kind_in_open_loop_is_not_feedback(kind):
+    out, h = _run(None, OPEN[kind], kind)
+    assert h.p_value >= G.P_GATE and not h.significant
+    assert "feedback" not in out.added
+
+
+def test_the_inputs_own_past_is_chosen_on_the_estimation_part_only():
+    """The number of the input's lags comes from the estimation segments' tails: scoring the
+    validation part with an over-fitted own-past predictor would inflate the loop's gain."""
+    sc = S.draw(None, OPEN["sweep"], "sweep")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order))
+    ctx = Context(out.data, out.split, out.current, out.before, {})
+    ip = G.input_prediction(ctx)
+    assert ip.u_lags in G.INPUT_LAGS
+    tails = G.input_prediction(
+        Context(out.data, out.split.inner(0.3), out.current, out.before, {}), ip.u_lags
+    )
+    others = [
+        G.input_prediction(
+            Context(out.data, out.split.inner(0.3), out.current, out.before, {}), k
+        ).open_error
+        for k in G.INPUT_LAGS
+    ]
+    assert np.mean(tails.open_error**2) == pytest.approx(min(np.mean(e**2) for e in others))
