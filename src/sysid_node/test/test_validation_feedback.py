@@ -32,6 +32,8 @@ def test_a_loop_under_a_swept_reference_is_found_and_scored_on_the_input(kind):
     assert h.significant and h.score >= MIN_DROP and h.drop_p < P_DROP
     assert "held-out one-step error of input 0" in h.trial_note
     assert out.hyps[0].effect == "feedback"
+    assert out.added.count("feedback") <= 1  # the loop model holds the loop: not added again
+    assert "not exogenous" in out.result()["verdict"]["text"]
 
 
 @pytest.mark.parametrize("kind", list(OPEN))

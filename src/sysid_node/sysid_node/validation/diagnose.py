@@ -325,6 +325,15 @@ def verdict(before: Assessment, hyps: list[Hypothesis]) -> dict:
         if free is not None and before.primary != "free_run"
         else ""
     )
+    if top is not None and top.significant and top.effect == "feedback":
+        return {
+            "status": "explained",
+            "text": (
+                f"the input is not exogenous (feedback): past outputs lower its one-step "
+                f"validation error by {100 * top.score:.0f} %; an open-loop model of these data "
+                f"is biased by the loop (model {what} fit {fit_txt}{free_txt})"
+            ),
+        }
     if top is not None and top.significant:
         return {
             "status": "explained",

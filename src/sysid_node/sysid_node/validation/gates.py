@@ -840,6 +840,9 @@ def feedback(ctx: Context) -> Hypothesis:
     if not ctx.data.n_inputs:
         h.evidence = "output-only data: no input"
         return h
+    if ctx.current.spec.feedback:
+        h.evidence = "the model holds the loop already (joint input-output model)"
+        return h
     ip = input_prediction(ctx)
     if ip is None:
         h.evidence = "no estimation segment long enough for the input's prediction"
