@@ -146,11 +146,12 @@ PARAMS: tuple[ParamSpec, ...] = (
        "the memory: 6 estimates at publish_rate 10 Hz = 0.6 memory_time_constant)",
        lo=1, hi=100),
     _p("tracking_lost_timeout", float, 2.0,
-       "Time without a match before a tracked mode is marked lost [s]", lo=0.0, hi=600.0,
-       unit="s"),
+       "Time without a match before a tracked mode is marked lost [s] (with an input: time "
+       "while the input excites its frequency; a sweep that moved on holds it)", lo=0.0,
+       hi=600.0, unit="s"),
     _p("tracking_drop_timeout", float, 30.0,
-       "Time without a match after which a lost mode leaves the estimate [s]", lo=0.0,
-       hi=3600.0, unit="s"),
+       "Time without a match after which a lost mode leaves the estimate [s] (counted as "
+       "tracking_lost_timeout)", lo=0.0, hi=3600.0, unit="s"),
     _p("tracking_median_count", int, 5,
        "A tracked mode's frequency and damping are the medians of its last N raw estimates "
        "(a burst in the data throws a realization or two off; 5 realizations at "

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy import signal
 
 from sysid_node import params as P
 from sysid_node.decimation import Decimator
@@ -749,7 +750,26 @@ class Pipeline:
         ]
         modes = sorted(modes, key=lambda m: (not getattr(m, "stable", True),
                                              -_finite(_rank_key(m))))[: v["max_modes"]]
-        self._tracked = self.tracker.update(modes, t)
+        self._tracked = self.tracker.update(modes, t, self._excitation())
+
+    def _excitation(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """Which frequencies the measured input excites over two memory time constants of the
+        estimator (Welch spectrum, any input within EXCITATION_DB of the peak); None for
+        output-only data or too little of it."""
+        if not self._layout[1]:
+            return None
+        _, u = self._recent.arrays()
+        fs = self.identification_rate
+        lam = P.effective_lambda(self.values, fs, self.band_low)
+        n = min(0 if u is None else len(u), max(SPECTRUM_MIN_SAMPLES, round(2.0 / (1.0 - lam))))
+        if n < SPECTRUM_MIN_SAMPLES:
+            return None
+        f, p = signal.welch(u[-n:], fs=fs, nperseg=n // 2, axis=0)
+        p = p.max(axis=1)
+        floor = float(p.max()) * 10.0 ** (-EXCITATION_DB / 10.0)
+        if not floor > 0:
+            return None
+        return lambda freqs: np.interp(freqs, f, p) >= floor
 
     def pop_spectra(self) -> list[SpectrumRecord]:
         """Residual spectra made since the last call (at most ``residual_spectrum_rate`` per
@@ -931,6 +951,10 @@ SPLIT_MOVE = 1.5
 SPECTRUM_MIN_SAMPLES = 256
 #: Recent data the residual spectrum is computed over [s].
 RESIDUAL_WINDOW_S = 20.0
+#: A frequency the input's spectrum over the estimator's memory holds more than this far below
+#: its peak [dB] is not excited: a confirmed mode seen while excited is held there, not lost
+#: (core.tracking; a sweep or a record-long Schroeder multisine excites one band at a time).
+EXCITATION_DB = 20.0
 
 
 class _Recent:

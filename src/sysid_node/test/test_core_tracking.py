@@ -32,6 +32,36 @@ def test_missing_mode_is_lost_after_timeout_and_reacquired_with_same_id():
     assert [t.id for t in out] == [1]
 
 
+def test_a_driven_mode_the_input_no_longer_excites_is_held_not_lost():
+    """A sweep that has moved on: the 2 Hz mode, seen while excited, is held; the 4 Hz one was
+    never seen while the input excited it and is lost as without input information; once the
+    sweep is back and the mode is still missing, the held mode is lost after the timeout."""
+    tr = ModeTracker(confirm_hits=1, lost_timeout_s=0.5, drop_timeout_s=5.0)
+    low = lambda f: np.asarray(f) < 3.0  # noqa: E731
+    high = lambda f: np.asarray(f) >= 3.0  # noqa: E731
+    tr.update([_m(2.0), _m(4.0)], 0.0, low)
+    out = tr.update([], 0.3, high)
+    out = tr.update([], 2.0, high)
+    assert {t.id: t.status for t in out} == {1: "tracked", 2: "lost"}
+    out = tr.update([], 20.0, high)  # held past the drop timeout too
+    assert {t.id: t.status for t in out} == {1: "tracked"}
+    out = tr.update([], 20.3, low)
+    assert out[0].status == "tracked"  # 0.3 s of missed excited time
+    out = tr.update([], 20.9, low)
+    assert out[0].status == "lost"
+    out = tr.update([_m(2.01)], 21.0, low)
+    assert (out[0].id, out[0].status) == (1, "tracked")
+
+
+def test_without_excitation_information_tracks_age_as_before():
+    a, b = ModeTracker(confirm_hits=1, lost_timeout_s=0.5), ModeTracker(confirm_hits=1,
+                                                                          lost_timeout_s=0.5)
+    for t, modes in ((0.0, [_m(2.0)]), (0.4, []), (0.8, [])):
+        out_a = a.update(modes, t)
+        out_b = b.update(modes, t, None)
+    assert [x.status for x in out_a] == [x.status for x in out_b] == ["lost"]
+
+
 def test_at_most_max_tracked_ranked_by_contribution():
     tr = ModeTracker(confirm_hits=1, max_tracked=2)
     strong = [ModalParameters(f, 0.02, contribution=c, shape=np.array([1.0, 0.5], complex))

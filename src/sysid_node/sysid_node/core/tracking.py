@@ -12,7 +12,11 @@ Tentative tracks are confirmed after ``confirm_hits`` hits, in successive update
 ``consecutive`` (consistency across updates rejects spurious modes: a noise pole passes the
 tests of a realization now and then, a physical one in a row); a track not seen for
 ``lost_timeout_s`` is lost (and may be re-acquired with the same id), and dropped after
-``drop_timeout_s``. Tentative tracks that miss for ``lost_timeout_s`` are discarded. Reported
+``drop_timeout_s``. Tentative tracks that miss for ``lost_timeout_s`` are discarded. With a
+measured input the caller may say which frequencies the input excites now (``excited``): a
+confirmed track that was seen while the input excited its frequency does not age while the input
+leaves it unexcited (a sweep, or a multisine that is a sweep within its period, has moved
+elsewhere): such a mode is held, not lost, since no data can show it gone. Reported
 frequency and damping are the medians of the last ``report_hits`` raw estimates (robust to a
 stray realization: a burst in the data), with ``report_hits`` 1 the latest one exponentially
 smoothed over the hits (``smoothing``); the standard deviations combine the
@@ -63,6 +67,10 @@ class TrackedMode:
     confirmed: bool = False
     #: hits in successive updates (reset by an update that does not match the track)
     streak: int = 0
+    #: seen at least once while the input excited its frequency (None: no input information)
+    driven: bool = False
+    #: time [s] since ``last_seen`` during which the input left its frequency unexcited
+    held_s: float = 0.0
 
     @property
     def rank(self) -> float:
@@ -125,10 +133,12 @@ class ModeTracker:
         self.report_hits = int(report_hits)
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
+        self._t_last = float("nan")  # data time of the previous update [s]
 
     def reset(self) -> None:
         self.tracks = []
         self._next_id = 1
+        self._t_last = float("nan")
 
     def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
         # gate against the median of the recent raw estimates: one wild realization (e.g. while
@@ -144,10 +154,16 @@ class ModeTracker:
             return np.inf
         return cf**2 + cz**2 + cm**2
 
-    def update(self, modes: list[ModalParameters], t: float) -> list[TrackedMode]:
+    def update(
+        self, modes: list[ModalParameters], t: float, excited=None
+    ) -> list[TrackedMode]:
         """Match the stable ones of ``modes`` (one realization at data time ``t`` [s]); returns
-        the live tracks (tentative, tracked and lost) sorted by frequency."""
+        the live tracks (tentative, tracked and lost) sorted by frequency. ``excited``: None, or
+        a function of frequencies [Hz] (array) returning which of them the input excites now
+        (a driven track at an unexcited frequency does not age, see the module docstring)."""
         modes = [md for md in modes if md.stable]
+        t_prev = self._t_last
+        self._t_last = t
         matched: set[int] = set()
         duplicate: set[int] = set()
         if self.tracks and modes:
@@ -179,10 +195,11 @@ class ModeTracker:
         for tr in self.tracks:
             if tr.last_seen != t:
                 tr.streak = 0  # missed in this update
+        self._excitation(excited, t, t_prev)
         self._merge_duplicates()
         keep = []
         for tr in self.tracks:
-            age = t - tr.last_seen
+            age = t - tr.last_seen - tr.held_s
             if not tr.confirmed and age > self.lost_timeout_s:
                 continue
             if tr.status != "lost" and age > self.lost_timeout_s:
@@ -195,6 +212,20 @@ class ModeTracker:
         self.tracks = keep
         self._rank()
         return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
+
+    def _excitation(self, excited, t: float, t_prev: float) -> None:
+        """Hold driven tracks the input does not excite now: their missed time does not count
+        towards lost; a track seen now while excited becomes driven."""
+        if excited is None or not self.tracks:
+            return
+        on = np.asarray(excited(np.array([tr.frequency_hz for tr in self.tracks])), bool)
+        dt = max(t - t_prev, 0.0) if np.isfinite(t_prev) else 0.0
+        for tr, ex in zip(self.tracks, on, strict=True):
+            if tr.last_seen == t:
+                tr.held_s = 0.0
+                tr.driven = tr.driven or bool(ex)
+            elif tr.driven and tr.confirmed and not ex:
+                tr.held_s = min(tr.held_s + dt, t - tr.last_seen)
 
     @staticmethod
     def _dominant(tr: TrackedMode, c: int, split: list[int],
