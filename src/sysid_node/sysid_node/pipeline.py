@@ -102,6 +102,7 @@ class Pipeline:
         self.spectra: list[SpectrumRecord] = []
         self._next_spectrum_ns: int | None = None
         self._recent = _Recent(0)
+        self._excited: tuple = (None, None)
         self._samples = 0
         self._sensors: SensorChecks | None = None
         self._band_key: tuple | None = None
@@ -168,6 +169,7 @@ class Pipeline:
             self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
             self._tracked: list = []
         self._recent = _Recent(int(RESIDUAL_WINDOW_S * fs) if np.isfinite(fs) else 0)
+        self._excited = (None, None)  # (samples seen, excitation test) of _excitation
         kind = f"{n_inputs} input(s)" if n_inputs else "output-only"
         rate = f"{fs:g} Hz"
         if self.decimator.factor > 1:
@@ -697,6 +699,7 @@ class Pipeline:
     def _restart_window(self) -> None:
         """Data resumes after a gap: no Hankel row may span it (the estimate is kept)."""
         self._recent.clear()
+        self._excited = (None, None)
         if self.low_band is not None:
             self.low_band.restart()
         est = self.estimator
@@ -755,21 +758,26 @@ class Pipeline:
     def _excitation(self) -> Callable[[np.ndarray], np.ndarray] | None:
         """Which frequencies the measured input excites over two memory time constants of the
         estimator (Welch spectrum, any input within EXCITATION_DB of the peak); None for
-        output-only data or too little of it."""
+        output-only data or too little of it. Made again once an eighth of that window is
+        new (the spectrum of a window that moved less is about the same)."""
         if not self._layout[1]:
             return None
-        _, u = self._recent.arrays()
         fs = self.identification_rate
         lam = P.effective_lambda(self.values, fs, self.band_low)
-        n = min(0 if u is None else len(u), max(SPECTRUM_MIN_SAMPLES, round(2.0 / (1.0 - lam))))
-        if n < SPECTRUM_MIN_SAMPLES:
-            return None
-        f, p = signal.welch(u[-n:], fs=fs, nperseg=n // 2, axis=0)
-        p = p.max(axis=1)
-        floor = float(p.max()) * 10.0 ** (-EXCITATION_DB / 10.0)
-        if not floor > 0:
-            return None
-        return lambda freqs: np.interp(freqs, f, p) >= floor
+        n = min(self._recent.n, max(SPECTRUM_MIN_SAMPLES, round(2.0 / (1.0 - lam))))
+        made, fn = self._excited
+        if made is not None and 0 <= self._samples - made < max(1, n // 8):
+            return fn
+        _, u = self._recent.arrays()
+        fn = None
+        if u is not None and len(u) >= SPECTRUM_MIN_SAMPLES:
+            f, p = signal.welch(u[-n:], fs=fs, nperseg=min(n, len(u)) // 2, axis=0)
+            p = p.max(axis=1)
+            floor = float(p.max()) * 10.0 ** (-EXCITATION_DB / 10.0)
+            if floor > 0:
+                fn = lambda freqs: np.interp(freqs, f, p) >= floor  # noqa: E731
+        self._excited = (self._samples, fn)
+        return fn
 
     def pop_spectra(self) -> list[SpectrumRecord]:
         """Residual spectra made since the last call (at most ``residual_spectrum_rate`` per
