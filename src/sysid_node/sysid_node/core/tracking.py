@@ -67,7 +67,7 @@ class TrackedMode:
     confirmed: bool = False
     #: hits in successive updates (reset by an update that does not match the track)
     streak: int = 0
-    #: seen at least once while the input excited its frequency (None: no input information)
+    #: seen at least once while the input excited its frequency (never without an input)
     driven: bool = False
     #: time [s] since ``last_seen`` during which the input left its frequency unexcited
     held_s: float = 0.0

@@ -206,9 +206,9 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
         f"past outputs lower the held-out one-step error of input {ip.input} by "
         f"{100 * cmp.drop:.0f} % against its own past (p={cmp.p_value:.1e}); {model_note}"
     )
-    h.evidence += "; " + h.trial_note
     if h.p_value >= G.P_GATE:
         h.trial_note += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
+    h.evidence += "; " + h.trial_note
     gate = h.p_value < G.P_GATE or n_tried > 1
     h.significant = bool(gate and cmp.p_value < P_DROP / n_tried and cmp.drop >= MIN_DROP)
 

@@ -829,6 +829,7 @@ def input_prediction(
 
 
 def _unit_columns(x: np.ndarray) -> np.ndarray:
+    """Columns scaled to unit norm (least squares on lags of signals of any scale)."""
     return x / np.maximum(np.linalg.norm(x, axis=0), 1e-300)
 
 
@@ -849,7 +850,7 @@ def feedback(ctx: Context) -> Hypothesis:
         return h
     ctx.fitted[("feedback", "input")] = ip
     # the gate: significant AND a material share (a model error that is a function of the
-    # input leaks a little into the innovations; a controller puts a large share there)
+    # input's distant past leaks a little past the free run; a controller puts a large share)
     h.p_value = ip.p_value if ip.share >= CLOSED_LOOP_SHARE else max(ip.p_value, P_GATE)
     h.parameters = {"share": ip.share, "input": ip.input}
     h.evidence = (
