@@ -41,9 +41,9 @@ TIE = 0.05
 POOR_FIT = 50.0
 
 
-def gate_all(ctx: Context) -> list[Hypothesis]:
-    """Every effect's gate, in vocabulary order."""
-    periodic, _, mode_peaks = G.periodic_disturbance(ctx)
+def gate_all(ctx: Context) -> tuple[list[Hypothesis], list]:
+    """Every effect's gate, in vocabulary order, and the residual peaks taken for lines."""
+    periodic, lines, mode_peaks = G.periodic_disturbance(ctx)
     return [
         G.missing_mode(ctx, mode_peaks),
         periodic,
@@ -52,7 +52,7 @@ def gate_all(ctx: Context) -> list[Hypothesis]:
         G.nonlinear_stiffness(ctx),
         G.sensor_bias(ctx),
         G.feedback(ctx),
-    ]
+    ], lines
 
 
 def diagnose(
@@ -78,7 +78,7 @@ def diagnose(
     else:
         cands = {} if signal == "" else dict(data.signals)
     ctx = Context(data, split, current, assessment, cands)
-    hyps = gate_all(ctx)
+    hyps, lines = gate_all(ctx)
     if trials:
         # a model that fails (primary fit under POOR_FIT) earns a trial of every effect with
         # parameters: its error is large enough that the held-out drop alone is a test
@@ -88,7 +88,25 @@ def diagnose(
         for h in hyps:
             if (h.p_value < G.P_GATE or search) and _triable(h):
                 confirm(h, ctx, spec, n_tried=len(hyps) if h.p_value >= G.P_GATE else 1)
+        _line_as_mode(hyps, lines, ctx, spec)
     return rank(hyps)
+
+
+def _line_as_mode(hyps: list[Hypothesis], lines: list, ctx: Context, spec: ModelSpec) -> None:
+    """A residual peak taken for a line (one sinusoid holds its band's power) whose periodic
+    trial failed is tried as a missing mode: a lightly damped mode rings at one frequency, and
+    over validation blocks a few of its periods long it looks like a line."""
+    pd = next(h for h in hyps if h.effect == "periodic_disturbance")
+    k = next(i for i, h in enumerate(hyps) if h.effect == "missing_mode")
+    if not lines or pd.significant or pd.parameters.get("source") or hyps[k].significant:
+        return
+    alt = G.missing_mode(ctx, [lines[0][0]])
+    if alt.p_value >= G.P_GATE or not _triable(alt):
+        return
+    confirm(alt, ctx, spec)
+    if alt.significant or alt.score > hyps[k].score:
+        alt.evidence = "the line's periodic trial failed, tried as a mode: " + alt.evidence
+        hyps[k] = alt
 
 
 def _triable(h: Hypothesis) -> bool:

@@ -2,8 +2,9 @@
 the current model (the gate) and the effect's parameters estimated from it.
 
 =====================  =======================================================================
-missing_mode           narrow-band residual peak above the 99.9 % noise-floor bound, not a line,
-                       not at a mode of the model or a harmonic of a rotating speed
+missing_mode           narrow-band residual peak above the 99.9 % noise-floor bound, not a line
+                       (unless the line's periodic trial failed: diagnose), not at a mode of
+                       the model or a harmonic of a rotating speed
 periodic_disturbance   harmonics of a candidate rotating speed (or a fixed line) explaining
                        residual variance (F-test)
 parameter_varying      residual power depending on a candidate scheduling signal (F-test)
