@@ -100,8 +100,8 @@ def _line_as_mode(hyps: list[Hypothesis], lines: list, ctx: Context, spec: Model
     k = next(i for i, h in enumerate(hyps) if h.effect == "missing_mode")
     if not lines or pd.significant or pd.parameters.get("source") or hyps[k].significant:
         return
-    alt = G.missing_mode(ctx, [lines[0][0]])
-    if alt.p_value >= G.P_GATE or not _triable(alt):
+    alt = G.peak_as_mode(ctx, lines[0][0])
+    if alt.p_value >= G.P_GATE:
         return
     confirm(alt, ctx, spec)
     if alt.significant or alt.score > hyps[k].score:
