@@ -157,3 +157,49 @@ def test_a_drifting_mode_is_followed_by_its_dominant_pole_not_its_memory():
     assert [(t.id, round(t.frequency_hz, 3)) for t in out] == [(1, 63.8)]
     out = tr.update([_c(62.4, 90.0), _c(63.9, 60.0)], 0.8)  # nor does it go back under 2x
     assert [(t.id, round(t.frequency_hz, 3)) for t in out] == [(1, 63.9)]
+
+
+def test_a_confirmed_noise_pole_that_only_recurs_now_and_then_is_not_tracked():
+    """A weak pole that passed confirm_hits realizations in a row, then comes back in one of four,
+    is tentative (it would otherwise stay tracked as long as it recurs within the timeout); a
+    physical mode missed in one of four, and a strong one (contribution above the innovation's)
+    seen in one of three, stay tracked; the weak pole is tracked again once it recurs in a row."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(3):
+        out = tr.update([_c(2.0, 0.5), _c(7.3, 0.1), _c(11.0, 20.0)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 3
+    for k in range(3, 43):
+        modes = [_c(2.0, 0.5)] if k % 4 else []
+        modes += [_c(7.3, 0.1)] if k % 4 == 0 else []
+        modes += [_c(11.0, 20.0)] if k % 3 == 0 else []
+        out = tr.update(modes, 0.05 * k)
+    assert {round(t.frequency_hz, 1): t.status for t in out} == {
+        2.0: "tracked", 7.3: "tentative", 11.0: "tracked"}
+    for k in range(43, 63):
+        out = tr.update([_c(2.0, 0.5), _c(7.3, 0.1), _c(11.0, 20.0)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 3
+
+
+def test_presence_does_not_demote_a_held_mode():
+    """A driven mode the input no longer excites is seen only now and then (an unexcited mode's
+    realization is weak): it stays tracked while held, as the hold promises."""
+    tr = ModeTracker(confirm_hits=1, lost_timeout_s=1.0)
+    low = lambda f: np.asarray(f) < 3.0  # noqa: E731
+    nowhere = lambda f: np.zeros(np.shape(f), bool)  # noqa: E731
+    for k in range(4):
+        tr.update([_c(2.0, 0.5)], 0.05 * k, low)
+    for k in range(4, 44):
+        out = tr.update([_c(2.0, 0.5)] if k % 5 == 0 else [], 0.05 * k, nowhere)
+    assert [t.status for t in out] == ["tracked"]
+
+
+def test_an_established_mode_that_weakens_keeps_its_status():
+    """A weak mode seen in every realization for longer than the timeout is established: when it
+    is then found only now and then (the data over the memory hold less of it), it stays tracked
+    until the timeout, unlike a pole that never was present."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(30):
+        tr.update([_c(2.0, 0.5)], 0.05 * k)
+    for k in range(30, 70):
+        out = tr.update([_c(2.0, 0.5)] if k % 4 == 0 else [], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"]

@@ -84,7 +84,7 @@ TARGET_SEEDS = range(8)
     "issue #10 targets not met by the defaults: benchmarks/random_suite.py --draws 26 "
     "--first-seed 0 and 26 (52 draws, defaults) on 2026-11-27's code gives every mode within "
     "2 % by 3 s in 48.1 % of draws (target 90 %; several more find them all at 4-7 s, after "
-    "the band choice at 4 s), false tracked per estimate mean 0.33 / max 3 (target 0.5 / 2), "
+    "the band choice at 4 s), false tracked per estimate mean 0.28 / max 3 (target 0.5 / 2), "
     "after a change 66.1 % (target 95 %), settled 78.9 %"))
 def test_issue_10_targets_on_the_first_draws():
     from sysid_node.suite import run_draw, summary

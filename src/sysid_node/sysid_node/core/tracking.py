@@ -12,7 +12,13 @@ Tentative tracks are confirmed after ``confirm_hits`` hits, in successive update
 ``consecutive`` (consistency across updates rejects spurious modes: a noise pole passes the
 tests of a realization now and then, a physical one in a row); a track not seen for
 ``lost_timeout_s`` is lost (and may be re-acquired with the same id), and dropped after
-``drop_timeout_s``. Tentative tracks that miss for ``lost_timeout_s`` are discarded. With a
+``drop_timeout_s``. Until a confirmed track has been *present* over a whole ``lost_timeout_s``
+(matched in at least ``PRESENCE_MIN`` of the updates that could match it) it is ``tracked`` only
+while it is present or strong (contribution at least ``STRONG_CONTRIBUTION``), ``tentative``
+otherwise: a noise pole that passed ``confirm_hits`` realizations in a row and then recurs only
+now and then would stay tracked as long as it recurred within the timeout. Once established, a
+mode is judged by the timeout alone (a mode that later weakens, e.g. as a sweep leaves it,
+keeps its status). Tentative tracks that miss for ``lost_timeout_s`` are discarded. With a
 measured input the caller may say which frequencies the input excites now (``excited``): a
 confirmed track that was seen while the input excited its frequency does not age while the input
 leaves it unexcited (a sweep, or a multisine that is a sweep within its period, has moved
@@ -46,6 +52,13 @@ STATUSES = ("tentative", "tracked", "lost")
 #: A split pole in a track's gate with this many times the contribution of the pole nearest
 #: the track's latest estimate takes the track instead (:meth:`ModeTracker._dominant`).
 SPLIT_DOMINANCE = 2.0
+#: Share of the updates of the last ``lost_timeout_s`` that could match a track in which a
+#: present one was matched (a physical mode is found in nearly every realization, a noise pole
+#: now and then); see the module docstring.
+PRESENCE_MIN = 0.5
+#: A track whose contribution is this large (its variance at least the innovation's) is tracked
+#: whatever its presence.
+STRONG_CONTRIBUTION = 1.0
 
 
 @dataclass
@@ -71,6 +84,17 @@ class TrackedMode:
     driven: bool = False
     #: time [s] since ``last_seen`` during which the input left its frequency unexcited
     held_s: float = 0.0
+    #: data times [s], within ``lost_timeout_s``, of the hits and of the updates that could have
+    #: matched (from its creation or re-acquisition after lost; not while held unexcited)
+    hit_times: deque = field(default_factory=deque, repr=False)
+    expected: deque = field(default_factory=deque, repr=False)
+    #: driven, and the input does not excite its frequency now
+    unexcited: bool = False
+    #: present (PRESENCE_MIN) over a whole ``lost_timeout_s`` since its window began: a mode,
+    #: no longer put to the presence test (the lost timeout judges it from then on)
+    established: bool = False
+    #: data time [s] its presence window began (creation, or re-acquisition after lost)
+    since: float = float("nan")
 
     @property
     def rank(self) -> float:
@@ -140,6 +164,15 @@ class ModeTracker:
         self._next_id = 1
         self._t_last = float("nan")
 
+    def presence(self, tr: TrackedMode) -> float:
+        """Share of the updates of the last ``lost_timeout_s`` that matched ``tr``, over those
+        that could (since its window began, and not while held unexcited); 1 while those span
+        less than half the timeout (too few to judge: the timeout judges a mode just missed)."""
+        q = tr.expected
+        if not q or q[-1] - q[0] < 0.5 * self.lost_timeout_s:
+            return 1.0
+        return len(tr.hit_times) / len(q)
+
     def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
         # gate against the median of the recent raw estimates: one wild realization (e.g. while
         # the data straddle an abrupt change) does not carry the track away
@@ -196,6 +229,7 @@ class ModeTracker:
             if tr.last_seen != t:
                 tr.streak = 0  # missed in this update
         self._excitation(excited, t, t_prev)
+        self._count_presence(t)
         self._merge_duplicates()
         keep = []
         for tr in self.tracks:
@@ -207,7 +241,9 @@ class ModeTracker:
             if tr.status == "lost" and age > self.drop_timeout_s:
                 continue
             if tr.status != "lost":
-                tr.status = "tracked" if tr.confirmed else "tentative"
+                present = (tr.established or tr.unexcited or tr.rank >= STRONG_CONTRIBUTION
+                           or self.presence(tr) >= PRESENCE_MIN)
+                tr.status = "tracked" if tr.confirmed and present else "tentative"
             keep.append(tr)
         self.tracks = keep
         self._rank()
@@ -221,11 +257,25 @@ class ModeTracker:
         on = np.asarray(excited(np.array([tr.frequency_hz for tr in self.tracks])), bool)
         dt = max(t - t_prev, 0.0) if np.isfinite(t_prev) else 0.0
         for tr, ex in zip(self.tracks, on, strict=True):
+            tr.unexcited = tr.driven and not ex
             if tr.last_seen == t:
                 tr.held_s = 0.0
                 tr.driven = tr.driven or bool(ex)
             elif tr.driven and tr.confirmed and not ex:
                 tr.held_s = min(tr.held_s + dt, t - tr.last_seen)
+
+    def _count_presence(self, t: float) -> None:
+        """This update in each track's presence window (PRESENCE_MIN), which keeps the last
+        ``lost_timeout_s``."""
+        for tr in self.tracks:
+            if tr.last_seen == t or not tr.unexcited:
+                tr.expected.append(t)
+            for q in (tr.hit_times, tr.expected):
+                while q and q[0] < t - self.lost_timeout_s:
+                    q.popleft()
+            if (tr.confirmed and t - tr.since >= self.lost_timeout_s
+                    and self.presence(tr) >= PRESENCE_MIN):
+                tr.established = True
 
     @staticmethod
     def _dominant(tr: TrackedMode, c: int, split: list[int],
@@ -290,6 +340,10 @@ class ModeTracker:
 
     def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
         tr.history.append((md.frequency_hz, md.damping_ratio))
+        if first or tr.status == "lost":
+            tr.hit_times, tr.expected = deque(), deque()
+            tr.since, tr.established = t, False
+        tr.hit_times.append(t)
         recent = list(tr.history)[-self.reference_hits :]
         tr.reference = (
             float(np.median([h[0] for h in recent])),
