@@ -84,10 +84,9 @@ class TrackedMode:
     driven: bool = False
     #: time [s] since ``last_seen`` during which the input left its frequency unexcited
     held_s: float = 0.0
-    #: data times [s], within ``lost_timeout_s``, of the hits and of the updates that could have
-    #: matched (from its creation or re-acquisition after lost; not while held unexcited)
-    hit_times: deque = field(default_factory=deque, repr=False)
-    expected: deque = field(default_factory=deque, repr=False)
+    #: (data time [s], matched) of the updates within ``lost_timeout_s`` that could have matched
+    #: it (from its creation or re-acquisition after lost; not while held unexcited)
+    window: deque = field(default_factory=deque, repr=False)
     #: driven, and the input does not excite its frequency now
     unexcited: bool = False
     #: present (PRESENCE_MIN) over a whole ``lost_timeout_s`` since its window began: a mode,
@@ -168,10 +167,10 @@ class ModeTracker:
         """Share of the updates of the last ``lost_timeout_s`` that matched ``tr``, over those
         that could (since its window began, and not while held unexcited); 1 while those span
         less than half the timeout (too few to judge: the timeout judges a mode just missed)."""
-        q = tr.expected
-        if not q or q[-1] - q[0] < 0.5 * self.lost_timeout_s:
+        q = tr.window
+        if not q or q[-1][0] - q[0][0] < 0.5 * self.lost_timeout_s:
             return 1.0
-        return len(tr.hit_times) / len(q)
+        return sum(hit for _, hit in q) / len(q)
 
     def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
         # gate against the median of the recent raw estimates: one wild realization (e.g. while
@@ -253,6 +252,8 @@ class ModeTracker:
         """Hold driven tracks the input does not excite now: their missed time does not count
         towards lost; a track seen now while excited becomes driven."""
         if excited is None or not self.tracks:
+            for tr in self.tracks:
+                tr.unexcited = False
             return
         on = np.asarray(excited(np.array([tr.frequency_hz for tr in self.tracks])), bool)
         dt = max(t - t_prev, 0.0) if np.isfinite(t_prev) else 0.0
@@ -268,11 +269,11 @@ class ModeTracker:
         """This update in each track's presence window (PRESENCE_MIN), which keeps the last
         ``lost_timeout_s``."""
         for tr in self.tracks:
-            if tr.last_seen == t or not tr.unexcited:
-                tr.expected.append(t)
-            for q in (tr.hit_times, tr.expected):
-                while q and q[0] < t - self.lost_timeout_s:
-                    q.popleft()
+            hit = tr.last_seen == t
+            if hit or not tr.unexcited:
+                tr.window.append((t, hit))
+            while tr.window and tr.window[0][0] < t - self.lost_timeout_s:
+                tr.window.popleft()
             if (tr.confirmed and t - tr.since >= self.lost_timeout_s
                     and self.presence(tr) >= PRESENCE_MIN):
                 tr.established = True
@@ -341,9 +342,7 @@ class ModeTracker:
     def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
         tr.history.append((md.frequency_hz, md.damping_ratio))
         if first or tr.status == "lost":
-            tr.hit_times, tr.expected = deque(), deque()
-            tr.since, tr.established = t, False
-        tr.hit_times.append(t)
+            tr.window, tr.since, tr.established = deque(), t, False
         recent = list(tr.history)[-self.reference_hits :]
         tr.reference = (
             float(np.median([h[0] for h in recent])),
