@@ -90,7 +90,7 @@ def project(L: np.ndarray, layout: Layout, sum_w: float, sum_w2: float) -> Proje
     # shifted problem: Y_{i+2|2i} on [W_p^+; U_{i+2|2i}], W_p^+ = [U_{1|i+1}; Y_{1|i+1}]
     r2 = r + l
     theta2 = _lower_solve_right(L[:r2, :r2], L[yf.start + l :, :r2])
-    wp_plus = np.r_[0:n_past, n_past : n_past + m, r:r2]
+    wp_plus = np.concatenate((np.arange(n_past + m), np.arange(r, r2)))
     o_shift = np.zeros((l * (i - 1), d))
     o_shift[:, :r2] = theta2[:, wp_plus] @ L[wp_plus, :r2]
     return Projection(layout, L, theta, u_svd, s, o_full, o_shift, sum_w, sum_w2)

@@ -57,6 +57,7 @@ contribution are the tracker's part (``tracking.py``).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -156,8 +157,14 @@ def overfit_threshold(regressors: int, n_outputs: int, n_eff: float) -> float:
     """Contribution (variance over innovation variance, summed over the outputs) that noise
     fitted by ``regressors`` least-squares regressors per output reaches with probability
     NOISE_PEAK_ALPHA from ``n_eff`` effective samples: l chi2_r(1 - alpha) / N_eff."""
-    q = float(stats.chi2.ppf(1.0 - NOISE_PEAK_ALPHA, max(int(regressors), 1)))
-    return n_outputs * q / max(float(n_eff), 1.0)
+    return n_outputs * _chi2_quantile(max(int(regressors), 1)) / max(float(n_eff), 1.0)
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_quantile(dof: int) -> float:
+    """chi2_dof(1 - NOISE_PEAK_ALPHA), once per window layout (scipy's ppf costs as much as
+    a small eigendecomposition, and every realization asks for it)."""
+    return float(stats.chi2.ppf(1.0 - NOISE_PEAK_ALPHA, dof))
 
 
 def noise_peak_threshold(band_width_hz: float, duration_s: float) -> float:
