@@ -133,10 +133,12 @@ def test_replay_into_node_recorded_estimates_accurate_and_equal_offline(
     rec_bag = tmp_path / "recorded"
     # reliable and a deep reader queue: on a loaded 2-core machine the subscriber process can be
     # descheduled for a while, and offline = live holds only if no sample is lost
-    # catch_up off and max_backlog 0: every estimate is made from every sample however late,
-    # as offline does (by default a node that falls behind makes only current estimates)
+    # catch_up off, max_backlog 0 and realization_budget 0: every estimate is made from every
+    # sample however late, with every realization, as offline does (by default a node that
+    # falls behind makes only current estimates, and a slow machine realizes less often)
     node = _start(["sysid_node", "--ros-args", "-p", "qos:=reliable", "-p", "qos_depth:=5000",
-                   "-p", "catch_up:=false", "-p", "max_backlog:=0.0"], tmp_path / "node.log")
+                   "-p", "catch_up:=false", "-p", "max_backlog:=0.0",
+                   "-p", "realization_budget:=0.0"], tmp_path / "node.log")
     record = _start(["record", "-o", str(rec_bag), "/modal_estimate"], tmp_path / "record.log")
     try:
         time.sleep(2.0)

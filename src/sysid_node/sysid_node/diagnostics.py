@@ -33,7 +33,8 @@ def merge_health(level: int, reason: str, faults: list[tuple[int, str]]) -> tupl
 
 def node_health(alive: bool, stalled_s: float, backlog_s: float,
                 backlog_warning: float, stall_limit: float) -> list[tuple[int, str]]:
-    """The node's own faults: a dead or stalled worker, a backlog above the warning level."""
+    """The node's own faults: a dead or stalled worker (FAULT), a backlog above the warning
+    level (DEGRADED). Only :func:`estimate_faults` of them go into the estimates."""
     out: list[tuple[int, str]] = []
     if not alive:
         out.append((HEALTH_FAULT, "estimator process not running (restarting)"))
@@ -42,6 +43,14 @@ def node_health(alive: bool, stalled_s: float, backlog_s: float,
     if math.isfinite(backlog_s) and backlog_warning > 0 and backlog_s > backlog_warning:
         out.append((HEALTH_DEGRADED, f"estimator {backlog_s:.2f} s behind real time"))
     return out
+
+
+def estimate_faults(faults: list[tuple[int, str]]) -> list[tuple[int, str]]:
+    """The node faults an estimate carries: the FAULTs (no estimator), not the backlog. A late
+    estimate is still the estimate of its data; its lateness is in its stamp, which the
+    consumer judges against its own timeouts (notch_filter_node's stale_timeout): marking it
+    degraded as well made the notches hold on every scheduling hiccup of a busy machine."""
+    return [(lv, why) for lv, why in faults if lv >= HEALTH_FAULT]
 
 
 def is_bad_input(key: str) -> bool:

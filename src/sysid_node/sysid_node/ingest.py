@@ -22,6 +22,7 @@ Everything is vectorised per message block; no good sample is lost.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -46,7 +47,9 @@ class Ingest:
     """Aligns the output (and input) streams by stamp onto a uniform sample grid.
 
     Parameters: ``sample_rate`` [Hz] (0 = measure from the output stamps), ``use_input`` (expect
-    an input stream; output-only while none arrives within ``INPUT_WAIT`` s of data),
+    an input stream; output-only while none arrives within ``INPUT_WAIT`` s of data, and on a
+    live node, ``clock`` given, within ``INPUT_WAIT`` s of wall-clock time too: a stream that is
+    only late in transport, as in a fast replay or a busy node, is waited for, not dropped),
     ``output_channels``/``input_channels`` (0 = from the first message), ``gap_fill_max_samples``,
     ``reorder_window`` [s] (data held back to reorder late arrivals), ``rate_mismatch``
     ('resample' or 'reject').
@@ -61,7 +64,11 @@ class Ingest:
         gap_fill_max_samples: int = 2,
         reorder_window: float = 0.02,
         rate_mismatch: str = "resample",
+        clock: Callable[[], float] | None = None,
     ) -> None:
+        self.clock = clock
+        self._arrived = {"output": -math.inf, "input": -math.inf}  # clock() at the last push
+        self._first_output = math.nan  # clock() at the timeline's first output push
         self.configured_rate = float(sample_rate)
         self.use_input = use_input
         self.max_fill = int(gap_fill_max_samples)
@@ -81,6 +88,7 @@ class Ingest:
         self.t0 = math.nan  # grid origin [s relative to origin_ns]
         self.next_k = 0
         self.mode = "pending" if self.use_input else "output_only"
+        self._first_output = math.nan
         self.segments = Segments(self.report, pending_reset=not first)
         for s in (self.out, self.inp):
             s.clear()
@@ -129,6 +137,11 @@ class Ingest:
         self.counters[f"{s.name}_received"] += n
         if n == 0:
             return
+        if self.clock is not None:
+            now = self.clock()
+            self._arrived[s.name] = now
+            if s is self.out and math.isnan(self._first_output):
+                self._first_output = now
         if values.ndim != 2 or values.shape[0] != n:
             self.counters[f"{s.name}_malformed"] += n
             self._event(f"{s.name}: malformed block (values {values.shape} for {n} stamps)")
@@ -293,13 +306,21 @@ class Ingest:
             self.segments.missing(k_skip - self.next_k)
             self.next_k = k_skip
 
+    def _waited(self, since: float) -> bool:
+        """Live (a clock): ``INPUT_WAIT`` s of wall-clock time have passed since ``since``
+        (NaN: not yet started). Offline: always, the data time alone decides."""
+        if self.clock is None:
+            return True
+        return math.isfinite(since) and self.clock() - since >= INPUT_WAIT
+
     def _choose_mode(self, flush: bool) -> None:
         """Input-output while input samples arrive, output-only otherwise (with a log line)."""
         out_end = float(self.out.t[-1]) if len(self.out.t) else -math.inf
         if self.mode == "pending":
             if self.inp.seen and not self.inp.rejected:
                 self.mode = "io"
-            elif out_end - self.t0 >= INPUT_WAIT or flush:
+            elif flush or (out_end - self.t0 >= INPUT_WAIT
+                           and self._waited(self._first_output)):
                 self.mode = "output_only"
                 self._event(f"no input samples within {INPUT_WAIT:g} s of data: output-only")
             return
@@ -307,7 +328,8 @@ class Ingest:
         # streams, whose output side resumes a message before the input side, is not a stop)
         ahead = int(np.count_nonzero(self.out.t > self.inp.max_t)) if len(self.out.t) else 0
         enough = not math.isfinite(self.fs) or ahead * self.period > INPUT_WAIT
-        stopped = self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
+        stopped = (self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
+                   and self._waited(self._arrived["input"]))
         if self.mode == "io" and (self.inp.rejected or stopped):
             self.mode = "output_only"
             why = "rejected" if self.inp.rejected else "stopped"

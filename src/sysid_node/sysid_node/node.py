@@ -279,7 +279,7 @@ class SysidNode(Node):
 
     def _publish(self, r: EstimateRecord) -> None:
         r.health, r.health_reason = D.merge_health(r.health, r.health_reason,
-                                                   self._node_faults())
+                                                   D.estimate_faults(self._node_faults()))
         self.estimate_pub.publish(mc.estimate_msg(r))
         self._last_record = r
         self._last_record_wall = time.monotonic()

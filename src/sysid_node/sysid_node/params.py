@@ -120,13 +120,20 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("realization_rate", float, 20.0,
        "Rate of the SVD-based realization of the model from the RLS factor [Hz of data time]",
        lo=0.1, hi=10000.0, unit="Hz"),
+    _p("realization_budget", float, 0.5,
+       "Share of one CPU core the live node's realizations (and the tracking after each) may "
+       "use on average; a publication period that finds it used up is absorbed without "
+       "realizing (counted as realizations_deferred), so a slow or busy machine gets current "
+       "estimates at a lower realization rate [-]; 0 = no limit (the offline tool never "
+       "limits)", lo=0.0, hi=1.0),
     _p("publish_rate", float, 10.0, "Rate of /modal_estimate [Hz of data time]",
        lo=0.1, hi=10000.0, unit="Hz"),
     _p("diagnostics_rate", float, 1.0, "Rate of /diagnostics [Hz, wall clock]",
        lo=0.1, hi=100.0, unit="Hz"),
     _p("backlog_warning", float, 0.5,
        "Backlog (data received but not yet identified) above which the node warns once and "
-       "reports its estimates degraded [s]; 0 = never", lo=0.0, hi=600.0, unit="s"),
+       "/diagnostics says WARN [s] (the estimates keep their health: their stamps tell how "
+       "late they are); 0 = never", lo=0.0, hi=600.0, unit="s"),
     _p("max_backlog", float, 5.0,
        "Backlog above which the oldest waiting data are dropped (counted as *_shed, said in a "
        "warning) so the estimate stays current [s]; 0 = never drop", lo=0.0, hi=600.0,

@@ -27,6 +27,7 @@ from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
 from sysid_node.low_band import LowBand, max_split_hz
+from sysid_node.realization_budget import RealizationBudget
 from sysid_node.records import (
     STATUS_NAMES,
     EstimateRecord,
@@ -77,6 +78,10 @@ class Pipeline:
         self.records_made = 0
         #: channel names per stream, from the signal messages (for ResidualSpectrum.channel_name)
         self.channel_names: dict[str, list[str]] = {"output": [], "input": []}
+        #: the live node's wall clock and CPU share for realizations (None: offline, and
+        #: unlimited; go_live)
+        self._live_clock: Callable[[], float] | None = None
+        self.budget: RealizationBudget | None = None
         self._build_ingest()
         #: online LPV (scheduling_topic, lpv_model): None when off
         self.scheduling = predictor_from(self.values)
@@ -92,6 +97,7 @@ class Pipeline:
             gap_fill_max_samples=v["gap_fill_max_samples"],
             reorder_window=v["reorder_window"],
             rate_mismatch=v["rate_mismatch"],
+            clock=self._live_clock,
         )
         self.estimator = None
         self.tracker = None
@@ -718,13 +724,19 @@ class Pipeline:
         self._recent.add(c.y, c.u)
         s0 = int(getattr(est, "samples_seen", self._samples))
         low = self.low_band
+        absorb = self._absorbing
+        if not absorb and self.budget is not None and not self.budget.allow():
+            absorb = True  # the realizations' CPU share is used up: stay current instead
+            self.ingest.counters["realizations_deferred"] += 1
+        spent0 = self._realization_seconds()
         if low is not None:
-            low.update(c.u, c.y, not self._absorbing, (s0 + len(c)) / self.identification_rate)
-        if self._absorbing:
+            low.update(c.u, c.y, not absorb, (s0 + len(c)) / self.identification_rate)
+        if absorb:
             est.absorb(c.u, c.y)
             models = []
         else:
             models = est.update(c.u, c.y) or []
+        t_track = time.perf_counter()
         for mdl in models:
             t_data = float(getattr(mdl, "time_s", math.nan))
             k = round(t_data * self.identification_rate) - s0 - 1
@@ -735,9 +747,30 @@ class Pipeline:
                     t_data, self.values["realization_rate"])
             self._track(modes, int(c.stamps_ns[k]) * 1e-9)
         dt = time.perf_counter() - t0
+        if self.budget is not None and not absorb:
+            # the realizations and the tracking after them (the whole piece when the
+            # estimator does not time its realizations, or was rebuilt meanwhile)
+            spent = self._realization_seconds() - spent0
+            ok = math.isfinite(spent) and spent >= 0
+            self.budget.spend(spent + time.perf_counter() - t_track if ok else dt)
         self.update_seconds += dt
         self.last_update_cost = dt / len(c)
         self._samples += len(c)
+
+    def _realization_seconds(self) -> float:
+        """Wall-clock seconds the estimators have spent realizing (NaN: not timed)."""
+        ests = [self.estimator] + ([self.low_band.estimator] if self.low_band else [])
+        return sum(float(getattr(e, "realization_seconds", math.nan)) for e in ests)
+
+    def go_live(self, clock: Callable[[], float] = time.monotonic) -> None:
+        """The live node's wall-clock rules (its worker calls this; offline never does): the
+        realizations use at most ``realization_budget`` of a core, and a late input stream is
+        waited for ``ingest.INPUT_WAIT`` s of wall-clock time as well as of data. The estimates
+        then depend on the machine's speed and load (the budget; 0 = none)."""
+        self._live_clock = clock
+        self.ingest.clock = clock
+        share = float(self.values["realization_budget"])
+        self.budget = RealizationBudget(share, clock=clock) if share > 0 else None
 
     def _track(self, modes: list, t: float) -> None:
         """The current (live) band, bounds and mode count, then the tracker (which matches only
@@ -896,6 +929,8 @@ class Pipeline:
 
     def _apply_live(self, changes: dict[str, Any]) -> None:
         est, v, fs = self.estimator, self.values, self.identification_rate
+        if "realization_budget" in changes and self._live_clock is not None:
+            self.go_live(self._live_clock)
         if any(k.startswith("tracking_") for k in changes) and self.tracker is not None:
             for names, key in (
                 (("frequency_gate", "frequency_tolerance"), "tracking_frequency_tolerance"),

@@ -10,8 +10,9 @@ from a sample to the estimate that used it, whatever the load:
   channel count) when the worker reports back, so the worker always takes everything that is
   waiting: the busier the machine, the larger and cheaper the batches, and the pipe never holds
   more than a couple of batches (nothing to drain before a parameter change applies).
-- **Realization off the catch-up path.** A batch gathered while the worker was busy is
-  absorbed by the RLS without realizations except over its newest publication period
+- **Realization off the catch-up path.** A batch gathered while the worker was busy, whose
+  oldest data have waited more than ``CATCH_UP_AFTER_S``, is absorbed by the RLS without
+  realizations except over its newest publication period
   (the realization, not the RLS update, is the expensive part): only current estimates are
   made, the skipped ones are counted (``estimates_skipped``).
 - **Newest data first when behind.** The backlog is how long the oldest data not yet
@@ -54,6 +55,10 @@ STALL_S = 5.0
 #: period (and at least this many seconds); the older part is absorbed without realizations
 #: (Pipeline.step(realize_from_ns)): the estimator catches up at a fraction of the cost.
 CATCH_UP_KEEP_S = 0.05
+#: ... once the oldest data of such a batch have waited this long [s]: a batch held only for
+#: the duration of one realization is processed whole (each of its estimates is made, at most
+#: this late), one held through a stall of the machine is caught up.
+CATCH_UP_AFTER_S = 0.25
 #: Time the worker may take to import and build its pipeline [s].
 START_TIMEOUT_S = 120.0
 
@@ -110,6 +115,7 @@ def worker_main(values: dict[str, Any], inbox: Any, outbox: Any) -> None:
     lines: list[str] = []
     try:
         pl = Pipeline(values, log=lines.append)
+        pl.go_live()  # the wall-clock rules: live only
     except Exception as err:  # reported to the node, which refuses to start
         outbox.put(("ready", f"{type(err).__name__}: {err}"))
         return
@@ -282,8 +288,10 @@ class WorkerLink:
         blocks = [(s, *b) for s in ("output", "input", "scheduling") for b in
                   stack_named([(p.stamps, p.values, p.names) for p in items if p.stream == s])]
         realize_from = None
-        if held and self.newest_ns is not None and self.values.get("catch_up", True):
-            # gathered while the worker was busy: behind
+        waited = time.monotonic() - items[0].arrived
+        if (held and waited > CATCH_UP_AFTER_S and self.newest_ns is not None
+                and self.values.get("catch_up", True)):
+            # gathered while the worker was busy, and for long enough to be behind
             keep = max(CATCH_UP_KEEP_S, 1.0 / float(self.values.get("publish_rate", 10.0)))
             realize_from = self.newest_ns - int(keep * 1e9)
         try:

@@ -235,6 +235,40 @@ def test_no_input_means_output_only():
     np.testing.assert_array_equal(_cat(chunks), y)
 
 
+def _late_input(ing: Ingest, t, y, u, lag: int, wall_per_block: float, now: list) -> list:
+    """Output blocks of 10 with the input ``lag`` samples behind in transport (a busy node, a
+    fast replay), the live clock advancing ``wall_per_block`` s per block."""
+    chunks = []
+    for a in range(0, len(t) + lag, 10):
+        if a < len(t):
+            ing.push_output(t[a : a + 10], y[a : a + 10])
+        if a >= lag:
+            ing.push_input(t[a - lag : a - lag + 10], u[a - lag : a - lag + 10])
+        chunks += ing.pop()
+        now[0] += wall_per_block
+    return chunks + ing.pop(flush=True)
+
+
+def test_live_input_late_in_transport_is_waited_for_not_dropped():
+    # 2 s of data behind (beyond INPUT_WAIT) but only 0.4 s of wall-clock time, as in a 5x replay
+    t, y, u = _data(1000, ny=1)
+    now = [0.0]
+    live = Ingest(sample_rate=FS, use_input=True, clock=lambda: now[0])
+    chunks = _late_input(live, t, y, u, lag=200, wall_per_block=0.02, now=now)
+    assert live.mode == "io" and live.counters.get("input_late", 0) == 0
+    assert all(c.u is not None for c in chunks)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u)
+    # offline (no clock) judges by data time alone: output-only first, the late input dropped
+    off = Ingest(sample_rate=FS, use_input=True)
+    chunks = _late_input(off, t, y, u, lag=200, wall_per_block=0.02, now=[0.0])
+    assert any(c.u is None for c in chunks) and off.counters["input_late"] > 0
+    # live, a silent input (more than INPUT_WAIT of wall-clock time) is still given up
+    now = [0.0]
+    slow = Ingest(sample_rate=FS, use_input=True, clock=lambda: now[0])
+    chunks = _late_input(slow, t, y, u, lag=200, wall_per_block=0.1, now=now)
+    assert any(c.u is None for c in chunks)
+
+
 def test_clock_jumping_back_starts_a_new_time_line():
     t, y, _ = _data(600)
     ing = Ingest(sample_rate=FS, use_input=False)

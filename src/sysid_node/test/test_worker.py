@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from sysid_node.log_throttle import LogThrottle, kind_of
 from sysid_node.pipeline import Pipeline
+from sysid_node.realization_budget import RealizationBudget
 from sysid_node.scenarios.paper import paper_example_data
 from sysid_node.worker import WorkerLink
 
@@ -118,3 +119,66 @@ def test_oldest_data_shed_when_too_far_behind(paper):
         assert any(level == "warn" and "behind" in text for level, text in lines)
     finally:
         link.stop()
+
+
+def test_realization_budget_token_bucket():
+    now = [0.0]
+    b = RealizationBudget(0.5, burst_s=0.3, clock=lambda: now[0])
+    assert b.allow()
+    b.spend(0.2)
+    assert b.allow()  # 0.1 s left
+    b.spend(0.2)
+    assert not b.allow()  # -0.1 s
+    now[0] = 0.1
+    assert not b.allow()  # -0.05 s
+    now[0] = 0.21
+    assert b.allow()  # 0.005 s: half of each wall-clock second accrues
+    now[0] = 100.0
+    b.spend(0.5)
+    assert not b.allow()  # the store never holds more than burst_s: 0.3 - 0.5 < 0
+
+
+def _feed(pl: Pipeline, stamps, u, y, step_wall, now) -> list:
+    records = []
+    for a in range(0, len(stamps), 10):
+        pl.push_output(stamps[a:a + 10], y[a:a + 10])
+        pl.push_input(stamps[a:a + 10], u[a:a + 10])
+        records += pl.step()
+        now[0] += step_wall
+    return records
+
+
+def test_budget_defers_realizations_but_keeps_every_estimate_and_the_modes(paper):
+    stamps, u, y = paper
+    full = Pipeline({"sample_rate": FS})
+    rec_full = _feed(full, stamps, u, y, 0.0, [0.0])
+    # a machine where the realizations' cost is three times the budget: the (fake) wall clock
+    # advances by a third of what the realizations of a 0.1 s piece cost at the budget share
+    cost = full.estimator.realization_seconds / len(rec_full)  # per 0.1 s piece
+    now = [0.0]
+    tight = Pipeline({"sample_rate": FS, "realization_budget": 0.5})
+    tight.go_live(clock=lambda: now[0])
+    rec = _feed(tight, stamps, u, y, cost / 0.5 / 3.0, now)
+    deferred = tight.counters["realizations_deferred"]
+    assert len(rec) == len(rec_full)  # every estimate is still published, on time
+    assert 0.4 * len(rec) <= deferred <= 0.9 * len(rec), deferred
+    assert tight.estimator.realization_count < 0.6 * full.estimator.realization_count
+    for f in (2.0, 4.0):  # and the structure is still tracked
+        assert any(abs(m.frequency_hz - f) < 0.02 * f and m.status == "tracked"
+                   for m in rec[-1].modes), rec[-1].modes
+
+
+def test_budget_zero_or_offline_realizes_everything(paper):
+    stamps, u, y = paper
+    off = Pipeline({"sample_rate": FS, "realization_budget": 0.5})  # offline: never enabled
+    live = Pipeline({"sample_rate": FS, "realization_budget": 0.0})
+    live.go_live(clock=lambda: 0.0)  # a clock that never advances: no credit ever
+    a = _feed(off, stamps, u, y, 0.0, [0.0])
+    b = _feed(live, stamps, u, y, 0.0, [0.0])
+    assert live.counters.get("realizations_deferred", 0) == 0
+    assert [r.samples_used for r in a] == [r.samples_used for r in b]
+    assert [[m.frequency_hz for m in r.modes] for r in a] == \
+        [[m.frequency_hz for m in r.modes] for r in b]
+    # set live to a share: the limit applies from then on
+    assert live.set_parameters({"realization_budget": 0.2}) == ""
+    assert live.budget is not None and live.budget.share == 0.2
