@@ -67,7 +67,7 @@ class Ingest:
         clock: Callable[[], float] | None = None,
     ) -> None:
         self.clock = clock
-        self._arrived = {"output": -math.inf, "input": -math.inf}  # clock() at the last push
+        self._input_arrived = -math.inf  # clock() at the last input push
         self._first_output = math.nan  # clock() at the timeline's first output push
         self.configured_rate = float(sample_rate)
         self.use_input = use_input
@@ -139,8 +139,9 @@ class Ingest:
             return
         if self.clock is not None:
             now = self.clock()
-            self._arrived[s.name] = now
-            if s is self.out and math.isnan(self._first_output):
+            if s is self.inp:
+                self._input_arrived = now
+            elif math.isnan(self._first_output):
                 self._first_output = now
         if values.ndim != 2 or values.shape[0] != n:
             self.counters[f"{s.name}_malformed"] += n
@@ -329,7 +330,7 @@ class Ingest:
         ahead = int(np.count_nonzero(self.out.t > self.inp.max_t)) if len(self.out.t) else 0
         enough = not math.isfinite(self.fs) or ahead * self.period > INPUT_WAIT
         stopped = (self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
-                   and self._waited(self._arrived["input"]))
+                   and self._waited(self._input_arrived))
         if self.mode == "io" and (self.inp.rejected or stopped):
             self.mode = "output_only"
             why = "rejected" if self.inp.rejected else "stopped"

@@ -728,7 +728,7 @@ class Pipeline:
         if not absorb and self.budget is not None and not self.budget.allow():
             absorb = True  # the realizations' CPU share is used up: stay current instead
             self.ingest.counters["realizations_deferred"] += 1
-        spent0 = self._realization_seconds()
+        spent0 = self._realization_seconds() if self.budget is not None else 0.0
         if low is not None:
             low.update(c.u, c.y, not absorb, (s0 + len(c)) / self.identification_rate)
         if absorb:
