@@ -33,6 +33,13 @@ def _executable(pkg: str, exe: str) -> str:
     return str(find(pkg, exe))
 
 
+def _bag_end_s() -> float:
+    """Header stamp of the bag's last vibration sample [s]."""
+    from sysid_node.bag_io import read_signals
+
+    return float(read_signals(BAG, ["/vibration"])["/vibration"].t[-1])
+
+
 @pytest.fixture(scope="module")
 def two_wings(tmp_path_factory):
     """Both wings running, the paper bag replayed into the left one; what each side heard."""
@@ -84,12 +91,20 @@ def two_wings(tmp_path_factory):
         else:
             pytest.fail("the four nodes did not come up within 120 s")
         replay = subprocess.run(
-            [_executable("sysid_node", "replay"), "--bag", str(BAG), "--rate", "8", "--quiet",
+            [_executable("sysid_node", "replay"), "--bag", str(BAG), "--rate", "4", "--quiet",
              "--remap", "/vibration:=/left_wing/vibration", "/excitation:=/left_wing/excitation"],
             capture_output=True, text=True, env=env, timeout=180,
         )
         assert replay.returncode == 0, replay.stderr
-        end = time.monotonic() + 3.0
+        # until the left wing's estimate reaches the bag's last second (a busy machine finishes
+        # the replayed data seconds after the player; at most 30 s), then 1 s for the rest
+        last_s = _bag_end_s() - 1.0
+        end = time.monotonic() + 30.0
+        est = heard["/left_wing/modal_estimate"]
+        while time.monotonic() < end and not (
+                est and est[-1].header.stamp.sec + 1e-9 * est[-1].header.stamp.nanosec >= last_s):
+            ex.spin_once(timeout_sec=0.1)
+        end = time.monotonic() + 1.0
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.1)
     finally:

@@ -36,8 +36,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("estimate_topic", str, "modal_estimate", "Topic of sysid_msgs/ModalEstimate",
        "read_only"),
     _p("bank_topic", str, "notch_bank", "Topic of sysid_msgs/NotchBank", "read_only"),
-    _p("qos_depth", int, 100, "History depth of the signal subscription and publisher "
-       "[messages]", "read_only", lo=1, hi=100000),
+    _p("qos_depth", int, 1000, "History depth of the signal subscription and publisher: "
+       "it must hold the samples that arrive while the process is not scheduled (a busy "
+       "or virtualised flight computer stalls a process for up to ~1 s; a sample lost "
+       "is a gap in the filtered signal) [messages]", "read_only", lo=1, hi=100000),
     _p("output_qos", str, "reliable",
        "QoS of the filtered output: 'reliable' (matches reliable and best-effort subscribers) or "
        "'sensor_data' (best effort)", "read_only", choices=NP.QOS_CHOICES),

@@ -26,6 +26,8 @@ from sysid_node.tools import msg_class, run_tool, start_node, stop_node
 from sysid_node.topics import topic_name_error
 
 PROG = "replay"
+#: Upper bound of the default publisher depth [messages]: a whole bag's worth, for a bag that fits
+MAX_DEPTH = 200_000
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -42,7 +44,14 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         default="reliable",
         help="reliable (default, deep queue, lossless) or sensor (best effort, sensor-data QoS)",
     )
-    ap.add_argument("--depth", type=int, default=1000, help="publisher queue depth (reliable)")
+    ap.add_argument(
+        "--depth",
+        type=int,
+        default=0,
+        help="publisher queue depth (reliable); 0 (default): the topic's message count in the bag, "
+        f"at most {MAX_DEPTH} (a reliable writer drops what a stalled reader has not yet "
+        "acknowledged beyond its depth)",
+    )
     ap.add_argument(
         "--wait-subscribers",
         type=float,
@@ -72,8 +81,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         ap.error("a bag is required (BAG or --bag BAG)")
     if not args.rate > 0 or args.rate == float("inf"):
         ap.error("--rate must be a positive finite number")
-    if args.depth < 1:
-        ap.error("--depth must be at least 1")
+    if args.depth < 0:
+        ap.error("--depth must be 0 (the bag's message count) or positive")
     return args
 
 
@@ -88,6 +97,13 @@ def _transient_local(bag: Path) -> set[str]:
             if profiles and all(q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles):
                 out.add(c.topic)
         return out
+
+
+def _bag_depth(count: int) -> int:
+    """Default reliable depth: every message of the topic, so that a subscriber process stalled
+    (descheduled, swapped) for seconds loses nothing: a KEEP_LAST writer overwrites samples not
+    yet acknowledged, and acknowledgements stop while the reader's process does not run."""
+    return max(1, min(int(count), MAX_DEPTH))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 qos = QoSProfile(
                     history=HistoryPolicy.KEEP_LAST,
-                    depth=1 if t in latched else args.depth,
+                    depth=1 if t in latched else args.depth or _bag_depth(available[t][1]),
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.TRANSIENT_LOCAL
                     if t in latched
