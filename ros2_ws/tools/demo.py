@@ -130,7 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bag", type=Path, default=DEFAULT_BAG, help="scenario bag to replay")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "demo", help="output directory")
     ap.add_argument("--params-file", type=Path, default=DEFAULT_PARAMS, help="YAML for both nodes")
-    ap.add_argument("--rate", type=float, default=2.0, help="replay speed factor (default 2)")
+    ap.add_argument("--rate", type=float, default=1.0,
+                    help="replay speed factor (default 1: the recorded pace, as in flight)")
     ap.add_argument("--report-only", action="store_true", help="re-analyse the last recording")
     ap.add_argument("--hogs", type=int, default=0,
                     help="busy-loop processes to run meanwhile (a loaded flight computer)")

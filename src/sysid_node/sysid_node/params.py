@@ -122,10 +122,10 @@ PARAMS: tuple[ParamSpec, ...] = (
        lo=0.1, hi=10000.0, unit="Hz"),
     _p("realization_budget", float, 0.5,
        "Share of one CPU core the live node's realizations (and the tracking after each) may "
-       "use on average; a publication period that finds it used up is absorbed without "
-       "realizing (counted as realizations_deferred), so a slow or busy machine gets current "
-       "estimates at a lower realization rate [-]; 0 = no limit (the offline tool never "
-       "limits)", lo=0.0, hi=1.0),
+       "use on average (CPU time, a stall capped at 3 x the recent median); a publication "
+       "period that finds it used up is absorbed without realizing (counted as "
+       "realizations_deferred), so a slow or busy machine gets current estimates at a lower "
+       "realization rate [-]; 0 = no limit (the offline tool never limits)", lo=0.0, hi=1.0),
     _p("publish_rate", float, 10.0, "Rate of /modal_estimate [Hz of data time]",
        lo=0.1, hi=10000.0, unit="Hz"),
     _p("diagnostics_rate", float, 1.0, "Rate of /diagnostics [Hz, wall clock]",

@@ -721,6 +721,7 @@ class Pipeline:
         the stamp of the sample it was realized after."""
         est = self.estimator
         t0 = time.perf_counter()
+        c0 = time.thread_time()
         self._recent.add(c.y, c.u)
         s0 = int(getattr(est, "samples_seen", self._samples))
         low = self.low_band
@@ -736,7 +737,7 @@ class Pipeline:
             models = []
         else:
             models = est.update(c.u, c.y) or []
-        t_track = time.perf_counter()
+        c_track = time.thread_time()
         for mdl in models:
             t_data = float(getattr(mdl, "time_s", math.nan))
             k = round(t_data * self.identification_rate) - s0 - 1
@@ -748,17 +749,21 @@ class Pipeline:
             self._track(modes, int(c.stamps_ns[k]) * 1e-9)
         dt = time.perf_counter() - t0
         if self.budget is not None and not absorb:
-            # the realizations and the tracking after them (the whole piece when the
-            # estimator does not time its realizations, or was rebuilt meanwhile)
+            # the CPU time of the realizations and the tracking after them (of the whole piece
+            # when the estimator does not time its realizations, or was rebuilt meanwhile); CPU
+            # time, not wall clock: a stall of the process (a VM descheduling it for up to a
+            # second) is not the realizations' cost, and charging it would stop them for seconds
             spent = self._realization_seconds() - spent0
             ok = math.isfinite(spent) and spent >= 0
-            self.budget.spend(spent + time.perf_counter() - t_track if ok else dt)
+            c_end = time.thread_time()
+            if models or not ok or spent > 0:  # a piece without a realization costs nothing
+                self.budget.spend(spent + c_end - c_track if ok else c_end - c0)
         self.update_seconds += dt
         self.last_update_cost = dt / len(c)
         self._samples += len(c)
 
     def _realization_seconds(self) -> float:
-        """Wall-clock seconds the estimators have spent realizing (NaN: not timed)."""
+        """CPU seconds the estimators have spent realizing (NaN: not timed)."""
         ests = [self.estimator] + ([self.low_band.estimator] if self.low_band else [])
         return sum(float(getattr(e, "realization_seconds", math.nan)) for e in ests)
 

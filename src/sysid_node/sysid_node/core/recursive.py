@@ -227,7 +227,9 @@ class RecursiveDSRA:
         self.realizations_skipped = 0
         self.last_realization_time = float("nan")  # data time [s]
         self.last_realization_cost_s = float("nan")  # wall-clock seconds
-        self.realization_seconds = 0.0  # wall-clock seconds spent realizing, attempts included
+        # CPU seconds of the calling thread spent realizing, attempts included (not wall-clock:
+        # a process descheduled in the middle of a realization did not spend the stall)
+        self.realization_seconds = 0.0
         self._excited = False
         # outlier gate: the last i samples (scaled, outliers replaced by their prediction),
         # reference mean squares of the inputs and outputs, current run of rejected samples
@@ -402,9 +404,9 @@ class RecursiveDSRA:
                                               self.realization_interval - 1)
             elif self._since_realization >= self.realization_interval:
                 self._since_realization = 0
-                t0 = time.perf_counter()
+                c0 = time.thread_time()
                 mdl = self._realize(pos - data.shape[0] + end_offset)
-                self.realization_seconds += time.perf_counter() - t0
+                self.realization_seconds += time.thread_time() - c0
                 if mdl is not None:
                     out.append(mdl)
 
