@@ -175,6 +175,8 @@ def figures(scn, res, params: Path, static) -> dict:
         "holding_share": float(np.mean(state == 1)),
         "claimed_over_delivered": int(np.sum(claimed[ok] > pr[ok] + 0.5)),
         "claimed_messages": int(ok.sum()),
+        # the probability the claim's region covers the true mode (the guarantee's confidence)
+        "claim_confidence": R.region_confidence(cfg["sigma_k"], cfg["damping_sigma_k"]),
         "lag_median_deg": float(np.median(lag)), "oracle_lag_median_deg": float(np.median(olag)),
         "lag_ratio_median": float(np.median(lag / olag)),
         "lag_ratio_p95": float(np.percentile(lag / olag, 95)),

@@ -50,6 +50,18 @@ def _is_node(pid: int) -> bool:
         return False
 
 
+def _in_imports(pid: int) -> bool:
+    """The node's own code runs (its signal handlers are in): rclpy's or numpy's extension is
+    mapped. Before that the interpreter itself starts (its ``site`` import); a SIGINT there is a
+    KeyboardInterrupt in CPython's start-up, before any code of any package, and on a VM that
+    stalls processes that phase alone can outlast a fixed pause."""
+    try:
+        maps = Path(f"/proc/{pid}/maps").read_bytes()
+    except OSError:
+        return False
+    return b"rclpy" in maps or b"numpy" in maps
+
+
 def _group_alive(pgid: int) -> list[int]:
     out = []
     for d in Path("/proc").iterdir():
@@ -92,7 +104,8 @@ def test_signals_stop_the_node_cleanly(case, tmp_path):
     try:
         assert _wait(lambda: _is_node(proc.pid), 30), "the node's executable did not start"
         if when == "startup":
-            time.sleep(0.5)  # inside the imports (10-20 s on a busy machine, ~2 s idle)
+            # inside the node's imports (10-20 s on a busy machine, ~2 s idle)
+            assert _wait(lambda: _in_imports(proc.pid), 60), log.read_text()[-2000:]
         else:
             assert _wait(lambda: READY in log.read_text(), 120), log.read_text()[-2000:]
             time.sleep(0.5)
