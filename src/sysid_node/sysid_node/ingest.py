@@ -68,6 +68,7 @@ class Ingest:
     ) -> None:
         self.clock = clock
         self._input_arrived = -math.inf  # clock() at the last input push
+        self._lead_since = math.nan  # clock() when the output data got INPUT_WAIT ahead
         self._first_output = math.nan  # clock() at the timeline's first output push
         self.configured_rate = float(sample_rate)
         self.use_input = use_input
@@ -89,6 +90,7 @@ class Ingest:
         self.next_k = 0
         self.mode = "pending" if self.use_input else "output_only"
         self._first_output = math.nan
+        self._lead_since = math.nan
         self.segments = Segments(self.report, pending_reset=not first)
         for s in (self.out, self.inp):
             s.clear()
@@ -329,8 +331,17 @@ class Ingest:
         # streams, whose output side resumes a message before the input side, is not a stop)
         ahead = int(np.count_nonzero(self.out.t > self.inp.max_t)) if len(self.out.t) else 0
         enough = not math.isfinite(self.fs) or ahead * self.period > INPUT_WAIT
-        stopped = (self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
-                   and self._waited(self._input_arrived))
+        ahead_in_data = self.out.max_t - self.inp.max_t > INPUT_WAIT and enough
+        # live, no input for INPUT_WAIT of wall clock (a stream late in transport, as in a fast
+        # replay, keeps arriving), and the lead lasting as long: after a stall of the process
+        # both streams arrive in a burst, the output's drained first (the input's last arrival
+        # is then long ago, but its samples are queued right behind)
+        if not ahead_in_data:
+            self._lead_since = math.nan
+        elif math.isnan(self._lead_since) and self.clock is not None:
+            self._lead_since = self.clock()
+        stopped = (ahead_in_data and self._waited(self._input_arrived)
+                   and self._waited(self._lead_since))
         if self.mode == "io" and (self.inp.rejected or stopped):
             self.mode = "output_only"
             why = "rejected" if self.inp.rejected else "stopped"

@@ -269,6 +269,32 @@ def test_live_input_late_in_transport_is_waited_for_not_dropped():
     assert any(c.u is None for c in chunks)
 
 
+def test_live_stall_drained_output_first_keeps_the_input():
+    # real time, then the process stalls 1.2 s (nothing arrives), then the queued samples are
+    # drained, the output's 1.5 s first and the input's right after: still input-output, no
+    # input sample dropped (the demo's node logged "input stream stopped" and dropped 100)
+    t, y, u = _data(600, ny=1)
+    now = [0.0]
+    ing = Ingest(sample_rate=FS, use_input=True, clock=lambda: now[0])
+    chunks = []
+    for a in range(0, 300, 10):
+        ing.push_output(t[a:a + 10], y[a:a + 10])
+        ing.push_input(t[a:a + 10], u[a:a + 10])
+        chunks += ing.pop()
+        now[0] += 0.1
+    now[0] += 1.2
+    for a in range(300, 450, 10):
+        ing.push_output(t[a:a + 10], y[a:a + 10])
+        chunks += ing.pop()
+        now[0] += 0.001
+    for a in range(300, 450, 10):
+        ing.push_input(t[a:a + 10], u[a:a + 10])
+        chunks += ing.pop()
+    assert ing.mode == "io" and ing.counters.get("input_late", 0) == 0, ing.events
+    chunks += ing.pop(flush=True)
+    np.testing.assert_array_equal(_cat(chunks, "u"), u[:450])
+
+
 def test_clock_jumping_back_starts_a_new_time_line():
     t, y, _ = _data(600)
     ing = Ingest(sample_rate=FS, use_input=False)
