@@ -7,13 +7,14 @@ the figures; its module docstring says how each is measured.
 Over the /notch_bank messages from the first estimate that tracks the mode plus the notch's
 fade-in (``fade_time``, a deliberate 1 s ramp): the true mode's resonance peak times the
 published bank at least 15 dB below the bare peak in >= 95 % of the messages, quiet and with
-the hogs, the rigid-body mode below the band changed by at most 1 dB, no ``fallback_active``
-while the latest estimate tracks the mode, the bank's claimed peak reduction above the delivered
-one in no more messages than its guarantee allows (the claim holds over a region that covers the
-true mode with probability ``resonance.region_confidence(sigma_k, damping_sigma_k)``, 96.5 % by
-default: a claim that never failed would be a needlessly wide notch); quiet, the phase lag at the
-crossover below the static notch's with the same guarantee, while the bank tracks a current
-estimate.
+the hogs; the rigid-body mode below the band changed by at most 1 dB; no ``fallback_active``
+while the latest estimate tracks the mode and is fresh (age <= ``stale_timeout``: an estimate
+seconds old on a saturated machine is meant to end in the fallback at ``fallback_timeout``);
+the bank's claimed peak reduction above the delivered one in no more messages than its
+guarantee allows (the claim holds over a region that covers the true mode with probability
+``resonance.region_confidence(sigma_k, damping_sigma_k)``, 96.5 % by default: a claim that
+never failed would be a needlessly wide notch); quiet, the phase lag at the crossover below the
+static notch's with the same guarantee, while the bank tracks a current estimate.
 
 The 99 % share and the 1.5 x the oracle notch's lag are judged in data time
 (test/test_notch_drift_suite.py: eight seeded draws, deterministic). Live, the widths also cover
@@ -24,7 +25,8 @@ tracking lag median 1.43-1.72 x the oracle's across runs of the same code; the s
 both.
 
 Under the hogs a late estimate holds the notches and widens them; sysid_node's bounded latency
-under contention (#12 item 1) keeps the estimate age well under fallback_timeout.
+under contention (#12 item 1) keeps the estimate age mostly under fallback_timeout (p95 2.6 s
+and 7.7 s in two runs of the same code on this VM).
 """
 
 from __future__ import annotations
@@ -70,7 +72,7 @@ def stressed(tmp_path_factory):
 def _common(fig: dict, share: float) -> None:
     assert fig["pr_share"] >= share, fig
     assert fig["rigid_max_abs_db"] <= 1.0, fig
-    assert fig["fallback_while_tracked"] == 0, fig
+    assert fig["fallback_while_tracked_fresh"] == 0, fig
     # the guarantee's confidence, with a sampling allowance of two messages (messages in a row
     # share one estimate, so their failures are not independent)
     allowed = (1.0 - fig["claim_confidence"]) * fig["claimed_messages"] + 2
