@@ -122,8 +122,10 @@ def figures(scn, res, params: Path, static) -> dict:
         return any(m[1] == 1 and abs(m[2] / f - 1.0) <= MATCH for m in est["modes"])
 
     first = next((e["t"] for e in res.estimates if tracks(e)), None)
-    if first is None:
-        return {"error": "the mode was never tracked"}
+    if first is None:  # what was seen instead, for the reader of a failed run
+        seen = sorted({round(m[2], 2) for e in res.estimates for m in e["modes"] if m[1] == 1})
+        return {"error": f"the mode was never tracked ({len(res.estimates)} estimates recorded, "
+                         f"tracked frequencies seen [Hz]: {seen[:12] or 'none'})"}
     start = first + cfg["fade_time"]
     ests = [(e["t"], tracks(e)) for e in res.estimates]
     est_t = np.array([t for t, _ in ests])
@@ -199,6 +201,13 @@ def figures(scn, res, params: Path, static) -> dict:
     }
 
 
+def print_log_tails(logs: Path, lines: int = 12) -> None:
+    """The last lines of each node's and tool's log, on stderr (a failed run says why)."""
+    for log in sorted(logs.glob("*.log")):
+        tail = log.read_text(errors="replace").splitlines()[-lines:]
+        print(f"--- {log.name} (last {len(tail)} lines)", *tail, sep="\n", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=3)
@@ -223,17 +232,19 @@ def main(argv: list[str] | None = None) -> int:
             recorded = run_pipeline(bag, out / "run", params, args.rate)
         except DemoError as err:
             print(f"notch_drift_figures: error: {err}", file=sys.stderr)
+            print_log_tails(out / "run" / "logs")
             return 2
         finally:
             stop_hogs(hogs)
         res = analyse(bag, recorded, params)
         fig = figures(scn, res, params, static)
-    fig["hogs"] = args.hogs
-    if "error" in fig:
-        print(f"notch_drift_figures: error: {fig['error']}", file=sys.stderr)
-        if args.json:
-            args.json.write_text(json.dumps(fig, indent=1))
-        return 2
+        fig["hogs"] = args.hogs
+        if "error" in fig:
+            print(f"notch_drift_figures: error: {fig['error']}", file=sys.stderr)
+            print_log_tails(out / "run" / "logs")
+            if args.json:
+                args.json.write_text(json.dumps(fig, indent=1))
+            return 2
     s = fig["seed_scenario"]
     print(f"drifting mode (seed {args.seed}): {s['f_from']:.2f} -> {s['f_to']:.2f} Hz, damping "
           f"{100 * s['zeta']:.1f} %, rigid body {s['rigid_hz']:.2f} Hz / "

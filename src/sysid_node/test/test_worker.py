@@ -18,6 +18,7 @@ from sysid_node import params as P
 
 T0 = 1_700_000_000 * 10**9
 FS = 100.0
+COST = 0.02  # [s] of CPU time per realization on the fake machine
 
 
 @pytest.fixture(scope="module")
@@ -153,14 +154,28 @@ def _feed(pl: Pipeline, stamps, u, y, step_wall, now) -> list:
     return records
 
 
-def test_budget_defers_realizations_but_keeps_every_estimate_and_the_modes(paper):
+def test_budget_defers_realizations_but_keeps_every_estimate_and_the_modes(paper, monkeypatch):
     stamps, u, y = paper
+    # a deterministic machine: every realization costs COST of (fake) thread CPU time and the
+    # tracking none (measured CPU time on a VM varies tenfold between runs: the hypervisor's
+    # steal is counted in it, and this test failed once in CI on that noise alone)
+    cpu, calls = [0.0], [0]
+    realize = RecursiveDSRA._realize
+
+    def costly(self, *args, **kwargs):
+        cpu[0] += COST
+        calls[0] += 1
+        return realize(self, *args, **kwargs)
+
+    monkeypatch.setattr(RecursiveDSRA, "_realize", costly)
+    monkeypatch.setattr(time, "thread_time", lambda: cpu[0])
     # what the budget charges per 0.1 s piece, with a budget that never runs out
     now = [0.0]
     full = Pipeline({"sample_rate": FS, "realization_budget": 1.0})
     full.go_live(clock=lambda: now[0])
     rec_full = _feed(full, stamps, u, y, 10.0, now)
     assert full.counters.get("realizations_deferred", 0) == 0
+    assert full.budget.spent_s == pytest.approx(COST * calls[0])
     cost = full.budget.spent_s / len(rec_full)
     # a machine where the realizations' cost is three times the budget: the (fake) wall clock
     # advances by a third of what the realizations of a 0.1 s piece cost at the budget share
@@ -170,9 +185,9 @@ def test_budget_defers_realizations_but_keeps_every_estimate_and_the_modes(paper
     rec = _feed(tight, stamps, u, y, cost / 0.5 / 3.0, now)
     deferred = tight.counters["realizations_deferred"]
     assert len(rec) == len(rec_full)  # every estimate is still published, on time
-    # (CPU time on a VM is noisy: the share deferred varies between runs, 0.2-0.7 here)
-    assert 0.1 * len(rec) <= deferred <= 0.9 * len(rec), deferred
-    assert tight.estimator.realization_count < 0.9 * full.estimator.realization_count
+    # two of three pieces find the store empty (the burst in store realizes the first ones)
+    assert 0.5 * len(rec) <= deferred <= 0.75 * len(rec), deferred
+    assert tight.estimator.realization_count < 0.5 * full.estimator.realization_count
     for f in (2.0, 4.0):  # and the structure is still tracked
         assert any(abs(m.frequency_hz - f) < 0.02 * f and m.status == "tracked"
                    for m in rec[-1].modes), rec[-1].modes
