@@ -176,6 +176,9 @@ class WorkerLink:
         self.log = log
         self.counters: Counter[str] = Counter()
         self._lock = threading.Lock()
+        # held from taking a batch to queueing it: two threads sending (a subscription callback
+        # and the receiver) would otherwise queue their batches out of order
+        self._send_lock = threading.Lock()
         self._pending: deque[_Pending] = deque()
         self._in_flight: dict[int, float] = {}  # batch id -> arrival of its oldest data
         self._sent_ns: dict[int, int] = {}  # batch id -> wall clock sent [ns]
@@ -274,6 +277,12 @@ class WorkerLink:
         self.inbox.put(("params", changes))
 
     def _send_waiting(self) -> None:
+        """Send what is waiting as one batch, if the worker has credit (batches are queued in
+        the order their data were taken)."""
+        with self._send_lock:
+            self._send_batch()
+
+    def _send_batch(self) -> None:
         with self._lock:
             if not self._pending or len(self._in_flight) >= IN_FLIGHT or not self.alive:
                 return

@@ -3,6 +3,8 @@ catch-up path of the pipeline, without DDS."""
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 
 import numpy as np
@@ -15,6 +17,7 @@ from sysid_node.scenarios.paper import paper_example_data
 from sysid_node.worker import WorkerLink
 
 from sysid_node import params as P
+from sysid_node import worker as worker_module
 
 T0 = 1_700_000_000 * 10**9
 FS = 100.0
@@ -105,6 +108,35 @@ def test_worker_link_round_trip_and_dead_worker_restarted(paper):
         assert recs[-1].stamp_ns >= stamps[750]
     finally:
         link.stop()
+
+
+def test_batches_queued_in_the_order_their_data_were_taken(paper, monkeypatch):
+    # the subscription callback and the receiver thread both send: the one that took the older
+    # data is slowed while it stacks them (a busy machine preempts it), the other sends newer
+    # data meanwhile; the worker must still get the older batch first (it got it second, and
+    # its ingest dropped good samples as stamped far ahead or restarted the Hankel window)
+    stamps, _, y = paper
+    link = WorkerLink({**P.defaults(), "sample_rate": FS}, lambda level, text: None)
+    link.inbox = queue.Queue()
+    monkeypatch.setattr(WorkerLink, "alive", property(lambda self: True))
+    stack, first = worker_module.stack_named, threading.Event()
+
+    def slow_first(items):
+        if not first.is_set():
+            first.set()
+            time.sleep(0.3)
+        return stack(items)
+
+    monkeypatch.setattr(worker_module, "stack_named", slow_first)
+    older = threading.Thread(target=link.submit,
+                             args=("output", [(stamps[:100], y[:100])], 100))
+    older.start()
+    first.wait(5.0)
+    link.submit("output", [(stamps[100:200], y[100:200])], 100)
+    older.join()
+    sent = [link.inbox.get_nowait() for _ in range(link.inbox.qsize())]
+    firsts = [int(item[2][0][1].min()) for item in sent]  # each batch's oldest stamp
+    assert firsts == sorted(firsts) == [stamps[0], stamps[100]], firsts
 
 
 def test_oldest_data_shed_when_too_far_behind(paper):
