@@ -116,7 +116,7 @@ def test_add_mode_gives_the_paper_6_hz_system():
     assert np.allclose(add_mode(sys_a, f, z).A, sys_b.A)
 
 
-@pytest.mark.parametrize("kind", X.KINDS)
+@pytest.mark.parametrize("kind", [*X.KINDS, "random_multisine"])
 def test_excitation_unit_rms_and_in_band(kind):
     fs, n = 200.0, 8000
     u = X.excitation(kind, n, 2, fs, np.random.default_rng(4), (5.0, 40.0))
@@ -131,6 +131,25 @@ def test_multisine_schroeder_crest_factor_and_uncorrelated_inputs():
     u = X.multisine(4000, 2, 100.0, (1.0, 20.0))
     assert np.max(np.abs(u)) < 2.5  # Schroeder phases: crest factor far below sqrt(2 K)
     assert abs(np.corrcoef(u.T)[0, 1]) < 0.05
+
+
+def test_random_phase_multisine_excites_the_whole_band_at_every_instant():
+    """The Schroeder multisine of a record-long period brings its lines in turn (a sweep): in
+    the first 2 s of 20 s nothing above 10 Hz of its 1-40 Hz band; the random-phase one has
+    every line in every 2 s window (power share above 10 Hz as over the whole record)."""
+    fs, n = 200.0, 4000
+    band = (1.0, 40.0)
+
+    def upper_share(u):
+        f, p = signal.welch(u, fs, nperseg=256)
+        return p[f > 10.0].sum() / p.sum()
+
+    schroeder = X.multisine(n, 1, fs, band)[:, 0]
+    rand = X.excitation("random_multisine", n, 1, fs, np.random.default_rng(3), band)[:, 0]
+    whole = upper_share(rand)
+    assert 0.6 < whole < 0.9  # 30 of the 39 Hz
+    assert upper_share(schroeder[:400]) < 0.05
+    assert all(abs(upper_share(rand[a:a + 400]) - whole) < 0.1 for a in range(0, n, 400))
 
 
 def test_faults_mark_what_they_touch():

@@ -130,7 +130,7 @@ def draw_modal_scenario(
     change: str | None = "random",
     duration_s: float | None = None,
     excitation_kind: str | None = None,
-    excitations: tuple[str, ...] = ("white", "coloured", "multisine"),
+    excitations: tuple[str, ...] = ("white", "coloured", "random_multisine"),
     output: str | None = None,
     damping: tuple[float, float] = (0.002, 0.05),
     noise: tuple[float, float] = (0.02, 0.10),
@@ -144,8 +144,10 @@ def draw_modal_scenario(
     separated (see :func:`draw_frequencies`); damping 0.2-5 %; ``n_outputs`` 1-3; output-only
     or one measured input (even odds); the sensor kind (``output``: displacement, velocity or
     acceleration); the excitation among ``excitations`` (output-only: ambient white or
-    coloured); each mode's level (RMS on its largest output) log-uniform in 0.3-1; output noise
-    2-10 % of each output's RMS.
+    coloured; the suite scores every mode by 3 s of data, so its inputs excite every mode
+    from the start: the multisine has random phases, not the Schroeder phases that make a
+    record-long multisine a sweep, ``excitations.multisine``); each mode's level (RMS on its
+    largest output) log-uniform in 0.3-1; output noise 2-10 % of each output's RMS.
     ``change`` ``"random"`` draws none (1/2), ``appear`` or ``jump`` (1/4 each); ``appear``: one
     mode (never the only one) starts from rest at 40-60 % of the record; ``jump``: one mode's
     frequency jumps by 5-20 % there (state carried). Default duration: 200 periods of the

@@ -4,7 +4,9 @@ stated (scale them as needed). Random ones take an explicit ``numpy.random.Gener
 * :func:`white`: Gaussian white noise (the paper's wideband input);
 * :func:`coloured`: white noise through a Butterworth band-pass (or low-pass), e.g. turbulence;
 * :func:`multisine`: sum of sines on the record's DFT grid with Schroeder phases (low crest
-  factor), inputs on interleaved lines so they are uncorrelated;
+  factor; over one period the lines come in turn, as in a linear sweep) or random phases
+  (every line at every instant: kind ``random_multisine``), inputs on interleaved lines so
+  they are uncorrelated;
 * :func:`sweep`: linear or logarithmic chirp;
 * :func:`sine_dwell`: one sine;
 * :func:`ambient`: an unmeasured input for output-only records (white or coloured; not recorded).
@@ -17,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+#: The input kinds the randomized suites draw from (``random_multisine`` is asked by name).
 KINDS = ("white", "coloured", "multisine", "sweep")
 
 
@@ -54,10 +57,13 @@ def coloured(
 
 def multisine(
     n: int, m: int, fs: float, band: tuple[float, float] | None = None,
-    period_samples: int | None = None,
+    period_samples: int | None = None, rng: np.random.Generator | None = None,
 ) -> np.ndarray:
     """Periodic multisine on the DFT grid of ``period_samples`` (default: the whole record) with
-    lines in ``band``; Schroeder phases phi_k = -pi k (k - 1) / K; input j takes every m-th line
+    lines in ``band``; Schroeder phases phi_k = -pi k (k - 1) / K, or with ``rng`` phases
+    uniform in [0, 2 pi) (a random-phase multisine, Pintelon & Schoukens: noise-like, every
+    line present at every instant, where the Schroeder signal of a long period sweeps through
+    the band and leaves a mode unexcited until its turn); input j takes every m-th line
     starting at the j-th (uncorrelated inputs); unit RMS per input."""
     lo, hi = _band(band, fs)
     p = int(period_samples or n)
@@ -73,7 +79,9 @@ def multisine(
         own = lines[j::m]
         k = np.arange(1, own.size + 1)
         spectrum = np.zeros(p // 2 + 1, dtype=complex)
-        spectrum[own] = np.exp(-1j * np.pi * k * (k - 1) / own.size)
+        phase = (-np.pi * k * (k - 1) / own.size if rng is None
+                 else rng.uniform(0.0, 2.0 * np.pi, own.size))
+        spectrum[own] = np.exp(1j * phase)
         u[:, j] = np.tile(np.fft.irfft(spectrum, p), reps)[:n]
     return u / np.std(u, axis=0, keepdims=True)
 
@@ -111,18 +119,21 @@ def excitation(
     kind: str, n: int, m: int, fs: float, rng: np.random.Generator,
     band: tuple[float, float] | None = None,
 ) -> np.ndarray:
-    """An input of kind ``white``, ``coloured``, ``multisine`` or ``sweep`` covering ``band``
-    [Hz] (default 0-0.45 fs), unit RMS per input. The sweep is linear over the record, one per
-    input with a random start (so several inputs are not identical)."""
+    """An input of kind ``white``, ``coloured``, ``multisine`` (Schroeder phases),
+    ``random_multisine`` (random phases) or ``sweep`` covering ``band`` [Hz] (default
+    0-0.45 fs), unit RMS per input. The multisines have the record as their period; the sweep is
+    linear over the record, one per input with a random start (so several inputs are not
+    identical)."""
     lo, hi = _band(band, fs)
     if kind == "white":
         return white(n, m, rng)
     if kind == "coloured":
         return coloured(n, m, rng, fs, (lo, hi))
-    if kind == "multisine":
-        return multisine(n, m, fs, (max(lo, fs / n), hi))
+    if kind in ("multisine", "random_multisine"):
+        return multisine(n, m, fs, (max(lo, fs / n), hi),
+                         rng=rng if kind == "random_multisine" else None)
     if kind == "sweep":
         u = sweep(n, fs, max(lo, 0.1), hi, "linear", 1)[:, 0]
         shifts = [0, *rng.integers(n, size=m - 1)]
         return np.column_stack([np.roll(u, int(k)) for k in shifts])
-    raise ValueError(f"unknown excitation {kind!r}; one of {', '.join(KINDS)}")
+    raise ValueError(f"unknown excitation {kind!r}; one of {', '.join(KINDS)}, random_multisine")
