@@ -73,6 +73,7 @@ def test_recursive_with_unit_lambda_agrees_with_batch(cobra_data):
         change_detection=False,
         input_scale=u.std(axis=0),
         output_scale=y.std(axis=0),
+        input_delta=0.0,  # the batch's least squares: no ridge on the input rows
     )
     _feed(est, u, y, block=333)
     rec = est.model
@@ -192,7 +193,10 @@ def test_hour_at_lambda_095_with_dead_and_poor_excitation_stays_sound():
     assert worst_min >= delta * (1 - 1e-9)  # SPD, covariance bounded by 1 / delta
     assert worst_max < 80 * 20 * 50  # dim x mean power (scaled ~1) x memory 1/(1-lambda)
     assert est.realizations_skipped > 0  # no realization from the all-zero stretch
-    assert recovered_at is not None and recovered_at - 3000.0 <= 5.0
+    # a memory of 0.2 s: single realizations scatter by percents, and the first with both
+    # modes within 2 % comes 5 s after the excitation with the input rows' ridge at 1e-6, 6 s
+    # with INPUT_REGULARISATION (0.1; 0.01 gave 6 s too)
+    assert recovered_at is not None and recovered_at - 3000.0 <= 6.0
     assert np.all(np.isfinite(est.prediction_error_rms))
 
 

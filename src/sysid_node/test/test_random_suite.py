@@ -86,9 +86,9 @@ TARGET_SEEDS = range(8)
 @pytest.mark.xfail(strict=True, reason=(
     "issue #10 targets not met by the defaults: benchmarks/random_suite.py --draws 26 "
     "--first-seed 0 and 26 (52 draws, defaults) on 2026-11-28's code gives every mode within "
-    "2 % by 3 s in 51.9 % of draws (target 90 %; several more find them all at 4-7 s), false "
-    "tracked per estimate mean 0.28 / max 5 (target 0.5 / 2; the 5 with a random-phase "
-    "multisine input, seed 17), after a change 72.5 % (target 95 %), settled 79.2 %"))
+    "2 % by 3 s in 57.7 % of draws (target 90 %; input-output 84 %, output-only 33 %), false "
+    "tracked per estimate mean 0.22 / max 3 (target 0.5 / 2; the 3 in output-only draws), "
+    "after a change 72.8 % (target 95 %), settled 83.6 %"))
 def test_issue_10_targets_on_the_first_draws():
     from sysid_node.suite import run_draw, summary
 
