@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-#: The input kinds the randomized suites draw from (``random_multisine`` is asked by name).
+#: The input kinds the hidden-effect suite draws from (``draw_effects``); ``random_multisine``
+#: is asked by name (the identification suite, ``draw_modal_scenario``).
 KINDS = ("white", "coloured", "multisine", "sweep")
 
 
