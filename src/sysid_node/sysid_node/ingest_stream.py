@@ -146,8 +146,9 @@ class Stream:
         forward clock jump once they span TIME_RESET_SPAN of data, dropped as bad stamps once
         the stream's own data moved on by that much without them."""
         if ahead.any():
-            if not self.future:
-                self.future_since = self.max_t
+            if not self.future:  # the stream's newest data when they arrived (this block's too)
+                rest = t[~ahead]
+                self.future_since = max(self.max_t, float(rest.max()) if len(rest) else -math.inf)
             self.future.append((t[ahead], values[ahead]))
             t, values = t[~ahead], values[~ahead]
         ft = np.concatenate([x[0] for x in self.future])

@@ -176,6 +176,27 @@ def test_late_block_in_the_same_burst_as_the_next_samples_is_no_jump():
     assert not ing.counters["input_bad_stamp"] and not ing.counters["gaps"]
 
 
+def test_gap_whose_first_samples_share_a_burst_with_the_last_ones_loses_nothing():
+    """A burst holding the stream's last 0.6 s before a 2 s gap and the first 0.4 s after it:
+    the post-gap samples are held as a possible clock jump, and the stream's data in the same
+    burst does not count as "the stream moved on without them" (they were dropped as bad
+    stamps: 40 good samples lost, seen in sysid_node's DDS test)."""
+    t, y, u = _data(1200, ny=1)
+    keep = np.r_[0:800, 1000:1200]
+    ing = Ingest(sample_rate=FS, use_input=True)
+    chunks = _run(ing, t[:740], y[:740], u[:740], flush=False)
+    burst = np.r_[740:800, 1000:1040]
+    ing.push_output(t[740:800], y[740:800])
+    ing.push_input(t[burst], u[burst])
+    chunks += ing.pop()
+    rest = keep[keep >= 1000]
+    chunks += _run(ing, t[rest], y[rest], u[rest], tu=t[rest])
+    assert not ing.counters["input_bad_stamp"] and not ing.counters["output_bad_stamp"]
+    assert ing.counters["gaps"] == 1 and ing.counters["gap_samples"] == 200
+    np.testing.assert_array_equal(_cat(chunks), y[keep])
+    np.testing.assert_array_equal(_cat(chunks, "u"), u[keep])
+
+
 def test_two_second_gap_splits_data_and_is_counted():
     t, y, _ = _data(800)
     keep = np.r_[0:300, 500:800]
