@@ -28,7 +28,7 @@ def main() -> None:
     ap.add_argument("--json", default="")
     a = ap.parse_args()
     head = ("seed", "fs", "modes", "out", "oo", "change", "2%@3s", "1%@3s", "t_all",
-            "false_mean", "false_max", "settled", "pickup_s", "after", "wall_s")
+            "false_mean", "false_max", "settled", "pickup_s", "after", "kept", "wall_s")
     print(" ".join(f"{h:>10}" for h in head), flush=True)
     results = []
     for seed in range(a.first_seed, a.first_seed + a.draws):
@@ -39,7 +39,8 @@ def main() -> None:
         row = (r.seed, f"{r.fs:.0f}", r.n_modes, r.n_outputs, int(r.output_only), r.change,
                int(r.found_by_3s), int(r.found_1pct_by_3s), f"{r.time_all_s:.2f}",
                f"{r.false_mean:.2f}", r.false_max, f"{r.settled_share:.2f}",
-               f"{r.pickup_s:.2f}", f"{r.after_share:.2f}", f"{wall:.1f}")
+               f"{r.pickup_s:.2f}", f"{r.after_share:.2f}", f"{r.kept_share:.2f}",
+               f"{wall:.1f}")
         print(" ".join(f"{x!s:>10}" for x in row), flush=True)
     s = summary(results)
     print()

@@ -17,7 +17,9 @@ draw (``DrawResult``):
 * with a change (mode appearing or jumping): ``pickup_s`` the time from the change to the
   first estimate with the new frequency tracked within 2 % (NaN if never), and
   ``after_share`` the estimates with every true mode within 2 % from the change + ``AFTER_S``
-  to the end.
+  to the end; ``kept_share`` the estimates from the change itself to the end in which every
+  mode that did not change is tracked within 2 % (issue #10's "no collapse on change": the
+  modes already there must not dissolve while the new one is being found).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ class DrawResult:
     pickup_s: float
     after_share: float
     estimates: int
+    kept_share: float = math.nan
 
 
 def run_pipeline(scn, params: dict | None = None) -> list[EstimateRecord]:
@@ -133,7 +136,7 @@ def score(scn, recs: list[EstimateRecord], seed: int = -1) -> DrawResult:
     first_right = np.flatnonzero(right & (t >= start))
     end_ref = min(t_change, duration)
     last_q = (t >= end_ref - 0.25 * min(end_ref, duration)) & (t < end_ref)
-    pickup, after = math.nan, math.nan
+    pickup, after, kept = math.nan, math.nan, math.nan
     if ch:
         new_f = float(ch.get("to_hz", math.nan))
         if not np.isfinite(new_f):  # appear: the mode that exists after the change only
@@ -145,6 +148,12 @@ def score(scn, recs: list[EstimateRecord], seed: int = -1) -> DrawResult:
         pickup = hit[0] - t_change if hit else math.nan
         sel = t >= t_change + AFTER_S
         after = float(right[sel].mean()) if sel.any() else math.nan
+        after_modes = {round(f, 9) for f, _ in scn.modes_at(t_change + 1e-3)}
+        unchanged = [f for f, _ in scn.modes_at(t_change - 1e-3) if round(f, 9) in after_modes]
+        since = t >= t_change
+        if since.any() and unchanged:
+            kept = float(np.mean([_all_right(_tracked(r), unchanged)
+                                  for r, s in zip(recs, since, strict=True) if s]))
     return DrawResult(
         seed=seed,
         fs=float(scn.fs),
@@ -161,6 +170,7 @@ def score(scn, recs: list[EstimateRecord], seed: int = -1) -> DrawResult:
         pickup_s=pickup,
         after_share=after,
         estimates=len(recs),
+        kept_share=kept,
     )
 
 
@@ -189,4 +199,5 @@ def summary(results: list[DrawResult]) -> dict[str, float]:
         "pickup_median_s": float(np.nanmedian([r.pickup_s for r in changed]))
         if any(np.isfinite(r.pickup_s) for r in changed) else math.nan,
         "after_change_share": mean([r.after_share for r in changed]),
+        "unchanged_kept_share": mean([r.kept_share for r in changed]),
     }

@@ -15,8 +15,9 @@ import math
 
 import numpy as np
 import pytest
+from sysid_node.records import EstimateRecord, ModeRecord
 from sysid_node.scenarios import draw_modal_scenario
-from sysid_node.suite import run_pipeline, score
+from sysid_node.suite import T0_NS, run_pipeline, score
 
 from sysid_node import params as P
 
@@ -24,6 +25,45 @@ from sysid_node import params as P
 #: (seed 2: one mode at 183 Hz; seed 3: two modes at 122 Hz, one appearing at 40-60 %).
 SEEDS = (2, 3)
 DURATION_S = 30.0
+
+
+def _record(t_s: float, freqs: list[float]) -> EstimateRecord:
+    modes = [ModeRecord(id=i, status="tracked", frequency_hz=f, frequency_std_hz=0.0,
+                        damping_ratio=0.01, damping_std=0.0, amplitude=1.0, age_s=1.0,
+                        shape=np.ones(1)) for i, f in enumerate(freqs)]
+    return EstimateRecord(stamp_ns=T0_NS + int(t_s * 1e9), modes=modes, model_order=10,
+                          block_rows=10, forgetting_factor=0.99, sample_rate=100.0,
+                          prediction_error_rms_per_channel=np.zeros(1), converged=True,
+                          samples_used=1)
+
+
+def test_kept_share_counts_the_modes_that_did_not_change_from_the_change_on():
+    """Seed 8: two modes, one jumping 10.3 -> 11.1 Hz at 15.9 s. Estimates that keep the other
+    mode but have not found the jumped one count as kept (not as all right); estimates that
+    lose the other mode do not."""
+    scn = draw_modal_scenario(np.random.default_rng(8), duration_s=DURATION_S)
+    ch = scn.change
+    assert ch["kind"] == "jump"
+    other = [f for f, _ in scn.modes_at(0.0) if abs(f - ch["from_hz"]) > 1e-9]
+    times = np.arange(1.0, DURATION_S, 0.1)
+    recs = []
+    for tk in times:
+        truth = [f for f, _ in scn.modes_at(tk)]
+        if tk < ch["time_s"]:
+            recs.append(_record(tk, truth))
+        elif tk < ch["time_s"] + 6.0:  # the jumped mode not yet found, the other kept
+            recs.append(_record(tk, other))
+        elif tk < ch["time_s"] + 10.0:  # the other mode lost, the new one found
+            recs.append(_record(tk, [ch["to_hz"]]))
+        else:
+            recs.append(_record(tk, truth))
+    res = score(scn, recs, 8)
+    since = times >= ch["time_s"]
+    lost = since & (times >= ch["time_s"] + 6.0) & (times < ch["time_s"] + 10.0)
+    assert res.kept_share == pytest.approx(1 - lost.sum() / since.sum())
+    late = times >= ch["time_s"] + 5.0
+    assert res.after_share == pytest.approx(
+        ((times >= ch["time_s"] + 10.0) & late).sum() / late.sum())
 
 
 @pytest.fixture(scope="module")
@@ -96,3 +136,4 @@ def test_issue_10_targets_on_the_first_draws():
     assert s["found_2pct_by_3s"] >= 0.9, s
     assert s["false_per_estimate_mean"] <= 0.5 and s["false_per_estimate_max"] <= 2, s
     assert not s["changes"] or s["after_change_share"] >= 0.95, s
+    assert not s["changes"] or s["unchanged_kept_share"] >= 0.95, s
