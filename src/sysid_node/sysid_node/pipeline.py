@@ -134,6 +134,7 @@ class Pipeline:
         self._raw: list[Chunk] = []
         self._next_check_ns: int | None = None
         self._widen_votes = 0
+        self._low_votes = 0
         self._split_votes = 0
         self._order_votes = 0  # a configured band's order (``_recount_modes``)
 
@@ -519,6 +520,7 @@ class Pipeline:
         self._set_split(split_frequency(choice, top) if capped else math.nan, choice)
         self._next_check_ns = int(self._raw[-1].stamps_ns[-1]) + round(BAND_CHECK_PERIOD_S * 1e9)
         self._widen_votes = 0
+        self._low_votes = 0
         self._split_votes = 0
         top = f"{choice.top_hz:.4g} Hz" if choice.found else "none"
         low = f"{choice.low_hz:.4g} Hz" if math.isfinite(choice.low_hz) else "none"
@@ -585,18 +587,49 @@ class Pipeline:
         """Recheck the band on the recent raw data; widen it (rebuild the estimator from those
         data, keeping the tracks) when a clear peak (WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR: not
         the roll-off of a strong mode) shows above WIDEN_FRACTION of it on two
-        successive checks. It never narrows (no rebuild for a quiet spell)."""
+        successive checks. It never narrows (no rebuild for a quiet spell); its lowest peak
+        may move down (``_recheck_low``)."""
         self._next_check_ns = last_ns + round(BAND_CHECK_PERIOD_S * 1e9)
         self._recheck_split()
         choice = self._band_from_raw(WIDEN_PROMINENCE, WIDEN_RATIO_FACTOR)
         wider = (choice.found and choice.top_hz > WIDEN_FRACTION * self.band_edge
                  and choice.fmax_hz > self.band_edge)
         if not self._voted("_widen_votes", wider):
+            self._recheck_low(choice)
             return
         self.band_edge = choice.fmax_hz
         self.log(f"automatic band widened to 0-{self.band_edge:g} Hz (structure up to "
                  f"{choice.top_hz:.4g} Hz): estimator rebuilt from the last "
                  f"{BAND_CHECK_WINDOW_S:g} s of data")
+        self._rebuild_from_raw()
+
+    def _recheck_low(self, choice) -> None:
+        """Move the lowest peak down when the recent data (up to BAND_CHECK_WINDOW_S: bins
+        finer than the first choice's 4 s) show structure rising below it up to a clear peak
+        below it, and the Hankel window needs ROWS_GROWTH x its rows to span half a period of
+        it (``params.effective_block_rows``), on two successive checks: the estimator is
+        rebuilt from the recent raw data with that window and memory, keeping the tracks. Low
+        modes standing little above a flat response (a displacement output's static level) in
+        the first choice's coarse bins are missed, and a window of a fraction of their period
+        loses them (a 2 Hz mode at 218 Hz with 23 block rows). Never up: a quiet spell does
+        not shorten the window."""
+        from sysid_node.core.band import PEAK_MIN_BINS
+
+        low, cur = choice.low_hz, self.band_low
+        # a clear peak (not one of the first bins, clear by default) between the new lowest
+        # rise and the current one: a mode below the window's, not a low-frequency drift
+        first = PEAK_MIN_BINS * choice.resolution_hz * (1 + 1e-9)
+        peak = any(first < p and low <= p and not p >= cur for p in choice.peaks_hz)
+        lower = (math.isfinite(low) and low > 0 and peak
+                 and P.effective_block_rows(self.values, *self._layout,
+                                            self.identification_rate, low)
+                 >= ROWS_GROWTH * self.block_rows)
+        if not self._voted("_low_votes", lower):
+            return
+        self.band_low = low
+        self.log(f"automatic band: lowest peak moved down to {low:.4g} Hz (structure rising "
+                 f"there in the last {BAND_CHECK_WINDOW_S:g} s of data): estimator rebuilt "
+                 "with a longer window")
         self._rebuild_from_raw()
 
     def _voted(self, counter: str, yes: bool) -> bool:

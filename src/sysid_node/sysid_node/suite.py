@@ -68,10 +68,11 @@ class DrawResult:
     kept_share: float = math.nan
 
 
-def run_pipeline(scn, params: dict | None = None) -> list[EstimateRecord]:
-    """Feed a drawn record to a Pipeline (defaults unless ``params``) message by message."""
+def run_pipeline(scn, params: dict | None = None, log=None) -> list[EstimateRecord]:
+    """Feed a drawn record to a Pipeline (defaults unless ``params``; ``log`` its log callback)
+    message by message."""
     values = {"output_only": scn.output_only, **(params or {})}
-    pl = Pipeline(values)
+    pl = Pipeline(values, log)
     stamps = scn.stamps_ns(T0_NS)
     recs: list[EstimateRecord] = []
     n = len(stamps)
