@@ -273,7 +273,7 @@ def test_fast_path_equals_reference(record, blocking, stabilize):
     fast, cuts_f, models_f, gates_f = _trace(RecursiveDSRA, rec, blocks, stabilize=stabilize)
     ref, cuts_r, models_r, gates_r = _trace(ReferenceDSRA, rec, blocks, stabilize=stabilize)
     # the records exercise what they should: rejected samples, detected changes, realizations
-    assert ref.outliers_rejected >= 3 and ref._gate_run == 0 and ref._change_count >= 1 and len(models_r) > 20
+    assert ref.outliers_rejected >= 3 and ref._change_count >= 1 and len(models_r) > 20
     assert gates_f == gates_r  # same samples rejected, at the same calls
     assert cuts_f == cuts_r  # information discounted before the same windows
     assert fast._change_count == ref._change_count
@@ -284,7 +284,7 @@ def test_fast_path_equals_reference(record, blocking, stabilize):
     scale = np.abs(ref._info).max()
     np.testing.assert_allclose(fast._info, ref._info, rtol=0, atol=1e-10 * scale)
     assert [mf.time_s for mf in models_f] == [mr.time_s for mr in models_r]
-    for mf, mr in zip(models_f, models_r):
+    for mf, mr in zip(models_f, models_r, strict=True):
         ff = np.sort([md.frequency_hz for md in mf.modes])
         fr = np.sort([md.frequency_hz for md in mr.modes])
         assert ff.shape == fr.shape

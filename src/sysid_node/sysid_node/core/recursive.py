@@ -29,7 +29,7 @@ from scipy import linalg
 from scipy.signal import lfilter
 
 from .batch import model_from_projection
-from .hankel import Layout, window_rows_packed
+from .hankel import Layout, _window_order, window_rows_packed
 from .inputs import InputError, as_2d, check_rate, finite_rows
 from .modal import ModalParameters, select_modes
 from .model import IdentifiedModel
@@ -219,6 +219,7 @@ class RecursiveDSRA:
         self._ridge = np.full(d, self.delta)
         self._ridge[self._u_cols] = max(self.delta, self.input_delta)
         self._info = np.diag(self._ridge)  # weighted information matrix R_k
+        self._info_diag = np.einsum("ii->i", self._info)  # its diagonal (a writable view)
         # covariance of the recent windows' inputs [u_p; u_f] (spurious.py test 5)
         self._u_recent = np.zeros((self._u_cols.size, self._u_cols.size))
         self._sum_w = 0.0
@@ -234,12 +235,16 @@ class RecursiveDSRA:
         self._theta1: np.ndarray | None = None
         self._pe_ms = np.full(self.n_outputs, np.nan)
         self._pe_short = np.full(self.n_outputs, np.nan)
+        self._coef_of: np.ndarray | None = None  # theta_1 of _coef (_innovation_coefficients)
+        self._coef = np.zeros((0, 0))
         self._holdoff = 0
         self._second_discount = 0
         self._change_count = 0
         self.model: IdentifiedModel | None = None
         self.samples_seen = 0
         self._samples_skipped = 0
+        self._weight_cache: dict = {}  # _weights
+        self._ew_kernel_of: tuple | None = None  # lambdas of _ew_kernel (_ew_paths)
         self._queue: list[np.ndarray] = []  # validated samples not yet absorbed
         self._queued = 0
         self.realization_count = 0
@@ -430,10 +435,17 @@ class RecursiveDSRA:
                     out.append(mdl)
 
     def _accumulate(self, data: np.ndarray) -> None:
-        """Gate the outliers, then absorb the rest (the window restarts after each outlier)."""
-        bad = self._gate(data) if self.outlier_gate else None
-        if bad is None or not bad.any():
-            self._accumulate_clean(data)
+        """Gate the outliers, then absorb the rest (the window restarts after each outlier).
+
+        In steady state (a realization exists and the window tail is full) the gate's
+        predictions and the change statistics' a-priori errors come from one product of the
+        block's windows with :meth:`_innovation_coefficients` (:meth:`_shared_product`)."""
+        shared = self._shared_product(data)
+        bad = None
+        if self.outlier_gate:
+            bad = self._gate(data, None if shared is None else shared[2])
+        if bad is None:
+            self._accumulate_clean(data, shared)
             return
         start = 0
         for b in np.flatnonzero(bad):  # rare path
@@ -444,8 +456,52 @@ class RecursiveDSRA:
         if start < data.shape[0]:
             self._accumulate_clean(data[start:])
 
-    def _gate(self, data: np.ndarray) -> np.ndarray:
-        """Flag the outliers among the rows of ``data`` (scaled [u, y]).
+    def _shared_product(self, data: np.ndarray):
+        """``(buf, z, p)`` for a block whose every sample ends a full window (the window tail
+        holds 2i - 1 samples) once a realization exists, else None: ``buf`` the tail and the
+        block, ``z`` its windows (one per sample of the block, (A1) layout) and
+        ``p = z @ _innovation_coefficients()``, (n, 2l): columns :l the gate's causal
+        one-step predictions of the block's outputs, columns l: the (A2) predictions of the
+        first future output of each window (the change statistics).
+
+        When the window tail is full the gate's own past (its last i samples) is the tail's
+        last i samples: the tail restarts after an outlier (which the gate replaced in its
+        past) or a NaN (which the gate never saw) and is only full again 2i - 1 clean samples
+        later, all of them seen by the gate as they are."""
+        if self._theta1 is None or self._tail.shape[0] != 2 * self.block_rows - 1:
+            return None
+        buf = np.concatenate((self._tail, data))
+        z = window_rows_packed(buf, self.n_inputs, self.block_rows)
+        return buf, z, z @ self._innovation_coefficients()
+
+    def _innovation_coefficients(self) -> np.ndarray:
+        """(dim, 2l) coefficients on a window z (A1 layout) of the two predictions of
+        :meth:`_shared_product`, rebuilt when the realization's theta_1 changes.
+
+        theta_1 (l x (i(m + l) + im)) is the first block row of [L_p T_d] of (A2), the RLS
+        estimate of Appendix B: y_{f,1} ~ theta_1 [u_p; y_p; u_f]. Columns l: are theta_1'
+        (zero on the y_f rows). Columns :l hold the gate's causal part of it applied to the
+        window's last i + 1 samples: the past coefficients on samples t - i .. t - 1 and the
+        first u_f coefficient on the input at t (:meth:`_gate_prediction`, t the window's last
+        sample)."""
+        th = self._theta1
+        if self._coef_of is th:
+            return self._coef
+        m, l, i = self.n_inputs, self.n_outputs, self.block_rows
+        npast = i * (m + l)
+        per_sample = np.zeros((2 * i, m + l, l))  # sample-major window: sample, channel
+        per_sample[i - 1 : 2 * i - 1, :m] = th[:, : i * m].reshape(l, i, m).transpose(1, 2, 0)
+        per_sample[i - 1 : 2 * i - 1, m:] = th[:, i * m : npast].reshape(l, i, l).transpose(
+            1, 2, 0)
+        per_sample[2 * i - 1, :m] = th[:, npast : npast + m].T
+        coef = np.zeros((self.layout.dim, 2 * l))
+        coef[:, :l] = per_sample.reshape(-1, l)[_window_order(i, m, l)]
+        coef[: th.shape[1], l:] = th.T
+        self._coef, self._coef_of = coef, th
+        return coef
+
+    def _gate(self, data: np.ndarray, shared: np.ndarray | None = None) -> np.ndarray | None:
+        """Flag the outliers among the rows of ``data`` (scaled [u, y]); None when there is none.
 
         The a-priori innovation of each output sample, e_t = y_t minus its prediction from the
         i samples before and the input at t (the causal part of the (A2) predictor's first
@@ -461,52 +517,73 @@ class RecursiveDSRA:
         samples longer than that window is a new signal level, not an outlier: the estimator
         restarts (``level_restarts``). Rejected samples never reach the change detection: a
         spike is not a change of the structure.
+
+        ``shared``: the predictions of the block from :meth:`_shared_product` (its first l
+        columns; the same numbers as :meth:`_gate_prediction` up to rounding), else computed
+        here.
         """
         m, l, i = self.n_inputs, self.n_outputs, self.block_rows
-        hist = np.vstack([self._gate_tail, data])
-        n0 = self._gate_tail.shape[0]
         n = data.shape[0]
-        bad = np.zeros(n, dtype=bool)
         ref = self._gate_ref
         q_y, q_u = self._gate_q
-        k = 0
-        e2_all = np.zeros((n, l))
         # the level of the block as it came (the replaced samples must not raise it)
-        level = max(float(np.max(np.abs(data[:, m:]), initial=0.0)), 1.0)
-        while k < n:
-            pred = self._gate_prediction(hist, n0 + k, level)
-            e2 = (hist[n0 + k :, m:] - pred) ** 2
-            e2_all[k:] = e2
-            nu_y = (e2 / ref[m:]).sum(axis=1)
-            over = nu_y > q_y
-            if m:
-                over |= (hist[n0 + k :, :m] ** 2 / ref[:m]).sum(axis=1) > q_u
-            hit = np.flatnonzero(over)
-            if hit.size == 0:
-                break
-            j = k + int(hit[0])
-            bad[j] = True
-            hist[n0 + j, m:] = pred[hit[0]]  # outlier out of the predictor's past
-            if m:
-                hist[n0 + j, :m] = 0.0
-            k = j + 1
-        good = np.hstack([hist[n0:, :m], e2_all])[~bad]  # [u, e^2]
-        good[:, :m] **= 2
+        level = max(float(np.abs(data[:, m:]).max(initial=0.0)), 1.0)
+        hist = None
+        if shared is None:
+            hist = np.concatenate((self._gate_tail, data))
+            pred = self._gate_prediction(hist, self._gate_tail.shape[0], level)
+        else:
+            pred = self._tame(shared[:, :l], level)
+        e2_all = (data[:, m:] - pred) ** 2
+        over = (e2_all / ref[m:]).sum(axis=1) > q_y
+        u2 = data[:, :m] ** 2
+        if m:
+            over |= (u2 / ref[:m]).sum(axis=1) > q_u
+        hit = np.flatnonzero(over)
+        bad = None
+        if hit.size:  # rare path: replace each outlier, predict the rest of the block again
+            if hist is None:
+                hist = np.concatenate((self._gate_tail, data))
+            n0 = hist.shape[0] - n
+            bad = np.zeros(n, dtype=bool)
+            k = 0
+            while hit.size:
+                j = k + int(hit[0])
+                bad[j] = True
+                hist[n0 + j, m:] = pred[hit[0]]  # outlier out of the predictor's past
+                if m:
+                    hist[n0 + j, :m] = 0.0
+                k = j + 1
+                if k >= n:
+                    break
+                pred = self._gate_prediction(hist, n0 + k, level)
+                e2 = (hist[n0 + k :, m:] - pred) ** 2
+                e2_all[k:] = e2
+                over = (e2 / ref[m:]).sum(axis=1) > q_y
+                if m:
+                    over |= (hist[n0 + k :, :m] ** 2 / ref[:m]).sum(axis=1) > q_u
+                hit = np.flatnonzero(over)
+        good = np.concatenate((u2, e2_all), axis=1)  # [u^2, e^2]
+        if bad is not None:
+            good = good[~bad]
         if good.shape[0]:
-            lam = self._gate_lambda
-            w = lam ** np.arange(good.shape[0] - 1, -1, -1.0)
-            decay = lam ** good.shape[0]
-            self._gate_ref = decay * ref + (1 - lam) * (w[:, None] * good).sum(axis=0)
+            w, decay, _, _ = self._weights(good.shape[0], self._gate_lambda)
             # never below (3 % of the start-up RMS)^2: after a quiet or dead stretch the
             # signal's return is not an outlier
-            self._gate_ref = np.maximum(self._gate_ref, GATE_REFERENCE_FLOOR)
+            lam = self._gate_lambda
+            self._gate_ref = np.maximum(decay * ref + (1 - lam) * (w @ good),
+                                        GATE_REFERENCE_FLOOR)
+        if hist is None:
+            hist = data if n >= i else np.concatenate((self._gate_tail, data))
         self._gate_tail = hist[-i:] if hist.shape[0] > i else hist
-        if bad.any():
-            self.outliers_rejected += int(bad.sum())
-            self._last_outlier = self._gated + int(np.flatnonzero(bad)[-1])
+        self._gated += n
+        if bad is None:
+            self._gate_run = 0
+            return None
+        self.outliers_rejected += int(bad.sum())
+        self._last_outlier = self._gated - n + int(np.flatnonzero(bad)[-1])
         trailing = n - 1 - int(np.flatnonzero(~bad)[-1]) if (~bad).any() else n
         self._gate_run = self._gate_run + n if trailing == n else trailing
-        self._gated += n
         if self._gate_run > GATE_REFERENCE_WINDOWS * self.change_window:
             self._restart_level()
             return np.ones(n, dtype=bool)
@@ -543,83 +620,105 @@ class RecursiveDSRA:
         p = up @ th[:, : i * m].T + yp @ th[:, i * m : npast].T
         if m:
             p += hist[first:, :m] @ th[:, npast : npast + m].T
-        # a realization from few samples per dimension can have wild predictor coefficients:
-        # a prediction far beyond the data is no reference (and must not replace a rejected
-        # sample: the next predictions would build on it and overflow)
-        wild = ~np.all(np.abs(p) <= GATE_WILD_FACTOR * level, axis=1)  # NaN too
-        p[wild] = 0.0
-        pred[first - start :] = p
+        pred[first - start :] = self._tame(p, level)
         return pred
 
-    def _accumulate_clean(self, data: np.ndarray) -> None:
-        i = self.block_rows
-        buf = np.vstack([self._tail, data])
-        self._tail = buf[-(2 * i - 1) :]
-        z = window_rows_packed(buf, self.n_inputs, i)
+    @staticmethod
+    def _tame(p: np.ndarray, level: float) -> np.ndarray:
+        """``p`` (in place) with the rows holding a wild prediction set to 0.
+
+        A realization from few samples per dimension can have wild predictor coefficients: a
+        prediction far beyond the data (GATE_WILD_FACTOR x ``level``; NaN too) is no
+        reference (and must not replace a rejected sample: the next predictions would build
+        on it and overflow)."""
+        ok = np.abs(p) <= GATE_WILD_FACTOR * level
+        if not ok.all():
+            p[~ok.all(axis=1)] = 0.0
+        return p
+
+    def _accumulate_clean(self, data: np.ndarray, shared=None) -> None:
+        """Absorb ``data`` (no outliers): the windows ending at its samples, split where the
+        change statistics discount the old information (``shared``: see
+        :meth:`_shared_product`)."""
+        if shared is None:
+            buf = np.concatenate((self._tail, data))
+            z = window_rows_packed(buf, self.n_inputs, self.block_rows)
+            e2 = None
+        else:
+            buf, z, p = shared
+            l = self.n_outputs
+            yf1 = self.layout.yf.start
+            e2 = (z[:, yf1 : yf1 + l] - p[:, l:]) ** 2
+        self._tail = buf[-(2 * self.block_rows - 1) :]
         if z.shape[0] == 0:
             return
         start = 0
-        for cut in self._change_cuts(z):  # discount the old information before window `cut`
+        for cut in self._change_cuts(z, e2):  # discount the old information before `cut`
             self._add_windows(z[start:cut])
             self._discount(self.change_discount)
             start = cut
         self._add_windows(z[start:])
 
-    def _change_cuts(self, z: np.ndarray) -> list[int]:
-        """Run the prediction-error statistics over the windows z sample by sample (vectorised
-        with lfilter) and return the window indices before which the information is discounted.
+    def _change_cuts(self, z: np.ndarray, e2: np.ndarray | None = None) -> list[int]:
+        """Run the prediction-error statistics over the windows z sample by sample (vectorised,
+        :meth:`_ew_paths`) and return the window indices before which the information is
+        discounted.
 
-        Per sample: the short- and long-term mean squares of the a-priori error are updated, a
-        change is declared when the short one exceeds ``change_threshold`` times the long one
-        of the sample before (outside the hold-off), and a second discount follows 2i samples
-        later. The result does not depend on how the data were split into blocks.
+        The a-priori error of window k is that of the first future output under the latest
+        (A2) estimate, e_k = y_{f,1} - theta_1 [u_p; y_p; u_f] (``e2``, its square, when the
+        caller has it from :meth:`_shared_product`). Per sample: the short- and long-term mean
+        squares of the error are updated, a change is declared when the short one exceeds
+        ``change_threshold`` times the long one of the sample before (outside the hold-off),
+        and a second discount follows 2i samples later. The result does not depend on how the
+        data were split into blocks.
         """
         if self._theta1 is None:
             return []
-        lay = self.layout
-        r = self._theta1.shape[1]
-        yf1 = z[:, lay.yf.start : lay.yf.start + self.n_outputs]
-        e2 = (yf1 - z[:, :r] @ self._theta1.T) ** 2
+        if e2 is None:
+            r = self._theta1.shape[1]
+            yf1 = self.layout.yf.start
+            e2 = (z[:, yf1 : yf1 + self.n_outputs] - z[:, :r] @ self._theta1.T) ** 2
         cuts: list[int] = []
         pos, n = 0, e2.shape[0]
+        thr = self.change_threshold
         while pos < n:
-            seg = e2[pos:]
-            short = self._ew_path(self._pe_short, seg, 1.0 - 1.0 / self.change_window)
-            long_ = self._ew_path(self._pe_ms, seg, self.forgetting_factor)
-            event = len(seg)
+            seg = e2[pos:] if pos else e2
+            ns = seg.shape[0]
+            short, long_ = self._ew_paths(seg)
+            event = ns
             free = max(self._holdoff - 1, 0)  # first sample outside the hold-off
-            if self.change_detection and free < len(seg):
-                limit = self.change_threshold * long_  # of the sample before: shifted by one
-                with np.errstate(invalid="ignore"):
-                    hit = short[free + 1 :] > limit[free:-1]
-                    first = short[free] > self.change_threshold * (
-                        self._pe_ms if free == 0 else long_[free - 1]
-                    )
+            if self.change_detection and free < ns:
+                # against the long-term level of the sample before: shifted by one (NaN
+                # compares False: no detection before the statistics have started)
+                first = short[free] > thr * (self._pe_ms if free == 0 else long_[free - 1])
                 if first.any():
                     event = free
-                elif hit.any():
-                    event = free + 1 + int(np.argmax(hit.any(axis=1)))
-            second = self._second_discount - 1 if self._second_discount > 0 else len(seg)
-            if event < len(seg) and event <= second:  # a (new) change
+                elif free + 1 < ns:
+                    hit = (short[free + 1 :] > thr * long_[free:-1]).any(axis=1)
+                    if hit.any():
+                        event = free + 1 + int(np.argmax(hit))
+            second = self._second_discount - 1 if self._second_discount > 0 else ns
+            if event < ns and event <= second:  # a (new) change
                 self._holdoff = int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
                 self._second_discount = 2 * self.block_rows
                 self._change_count += 1
-            elif second < len(seg):  # the second discount, 2i samples after a change
+            elif second < ns:  # the second discount, 2i samples after a change
                 event = second
                 self._second_discount = 0
                 self._holdoff = max(self._holdoff - (event + 1), 0)
             else:
-                self._holdoff = max(self._holdoff - len(seg), 0)
-                self._second_discount = max(self._second_discount - len(seg), 0)
-            last = min(event, len(seg) - 1)
+                self._holdoff = max(self._holdoff - ns, 0)
+                self._second_discount = max(self._second_discount - ns, 0)
+            last = min(event, ns - 1)
             self._pe_short, self._pe_ms = short[last], long_[last]
-            if event < len(seg):
+            if event < ns:
                 cuts.append(pos + event)
             pos += last + 1
         return cuts
 
     def _add_windows(self, z: np.ndarray) -> None:
-        """R_k = lambda_k R_{k-1} + z_k z_k' + (1 - lambda_k) Delta over the rows of z."""
+        """R_k = lambda_k R_{k-1} + z_k z_k' + (1 - lambda_k) Delta over the rows of z (the RLS
+        of Appendix B in information form, one product per block)."""
         n = z.shape[0]
         if n == 0:
             return
@@ -627,32 +726,34 @@ class RecursiveDSRA:
         memory = 1.0 / max(1.0 - lam_f, 1e-12)
         first, last = self._k + 1, self._k + n
         if not self.startup_memory or first >= memory:  # steady state: lambda_k = lambda
-            w = lam_f ** np.arange(n - 1, -1, -1.0)  # prod_{s>t} lambda_s
-            decay = lam_f**n
-        elif last < memory:  # growing window: equal weights until the memory is filled
-            w, decay = np.ones(n), 1.0
-        else:  # the block where the memory fills
-            lam = np.where(np.arange(first, last + 1) < memory, 1.0, lam_f)
-            w = np.append(np.cumprod(lam[::-1])[::-1][1:], 1.0)
-            decay = float(np.prod(lam))
+            w, decay, w_sum, w_sq = self._weights(n, lam_f)  # w_t = prod_{s>t} lambda_s
+        else:
+            if last < memory:  # growing window: equal weights until the memory is filled
+                w, decay = np.ones(n), 1.0
+            else:  # the block where the memory fills
+                lam = np.where(np.arange(first, last + 1) < memory, 1.0, lam_f)
+                w = np.append(np.cumprod(lam[::-1])[::-1][1:], 1.0)
+                decay = float(np.prod(lam))
+            w_sum, w_sq = float(w.sum()), float(w @ w)
         info = self._info  # in place; symmetric up to rounding (symmetrised when read)
         if decay != 1.0:
             info *= decay
-            np.einsum("ii->i", info)[...] += self._ridge * (1.0 - decay)
+            self._info_diag += self._ridge * (1.0 - decay)
         info += (z * w[:, None]).T @ z
         if self._u_cols.size and self.stabilize:  # their inputs over a short memory (test 5)
             lam_u = min(lam_f, 1.0 - 1.0 / (INPUT_RECENT_WINDOWS * 2 * self.layout.i))
             zu = z[:, self._u_cols]
-            self._u_recent *= lam_u**n
-            self._u_recent += (zu * (lam_u ** np.arange(n - 1, -1, -1.0))[:, None]).T @ zu
-        self._sum_w = decay * self._sum_w + float(w.sum())
-        self._sum_w2 = decay**2 * self._sum_w2 + float(w @ w)
+            wu, decay_u, _, _ = self._weights(n, lam_u)
+            self._u_recent *= decay_u
+            self._u_recent += (zu * wu[:, None]).T @ zu
+        self._sum_w = decay * self._sum_w + w_sum
+        self._sum_w2 = decay**2 * self._sum_w2 + w_sq
         self._k += n
 
     def _discount(self, c: float) -> None:
         """Keep a fraction c of the old information (R >= Delta is preserved)."""
         self._info *= c
-        self._info.flat[:: self._info.shape[0] + 1] += (1.0 - c) * self._ridge
+        self._info_diag += (1.0 - c) * self._ridge
         self._sum_w *= c
         self._sum_w2 *= c * c
 
@@ -662,6 +763,47 @@ class RecursiveDSRA:
         GATE_REFERENCE_WINDOWS change windows."""
         lam_ref = 1.0 - 1.0 / (GATE_REFERENCE_WINDOWS * self.change_window)
         return min(self.forgetting_factor, lam_ref)
+
+    def _weights(self, n: int, lam: float) -> tuple[np.ndarray, float, float, float]:
+        """(w, lam^n, sum w, w'w) with w_t = lam^(n-1-t), t = 0..n-1: the weights of n samples
+        of exponential forgetting (cached: the blocks have a handful of lengths)."""
+        key = (n, lam)
+        hit = self._weight_cache.get(key)
+        if hit is None:
+            w = lam ** np.arange(n - 1, -1, -1.0)
+            hit = (w, lam**n, float(w.sum()), float(w @ w))
+            if len(self._weight_cache) >= 64:
+                self._weight_cache.clear()
+            self._weight_cache[key] = hit
+        return hit
+
+    def _ew_paths(self, sq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The short- and long-term paths p_t = lam p_{t-1} + (1 - lam) sq_t over the rows t of
+        sq, lam = 1 - 1/change_window and the forgetting factor (p_{-1} = _pe_short, _pe_ms; a
+        NaN start takes the first sample).
+
+        Closed form p = K sq + v p_{-1} with K_ts = (1 - lam) lam^(t-s) (s <= t) and
+        v_t = lam^(t+1), the two paths in one batched product with K cached per pair of
+        lambdas (for blocks up to a realization interval; lfilter for longer ones)."""
+        lams = (1.0 - 1.0 / self.change_window, self.forgetting_factor)
+        n = sq.shape[0]
+        size = min(self.MAX_QUEUED, self.realization_interval)
+        if n > size:
+            return (self._ew_path(self._pe_short, sq, lams[0]),
+                    self._ew_path(self._pe_ms, sq, lams[1]))
+        if self._ew_kernel_of != lams:
+            t = np.arange(size, dtype=float)
+            lag = t[:, None] - t[None, :]
+            lam = np.array(lams)[:, None, None]
+            self._ew_kernel = np.where(lag >= 0, (1.0 - lam) * lam ** np.maximum(lag, 0.0), 0.0)
+            self._ew_start = lam[:, :, 0] ** (t + 1.0)  # (2, N)
+            self._ew_kernel_of = lams
+        prev = np.stack((self._pe_short, self._pe_ms))
+        if not np.isfinite(prev).all():
+            prev = np.where(np.isfinite(prev), prev, sq[0])
+        paths = self._ew_kernel[:, :n, :n] @ sq
+        paths += self._ew_start[:, :n, None] * prev[:, None, :]
+        return paths[0], paths[1]
 
     @staticmethod
     def _ew_path(prev: np.ndarray, sq: np.ndarray, lam: float) -> np.ndarray:
@@ -681,7 +823,9 @@ class RecursiveDSRA:
             self.realizations_skipped += 1
             return None
         try:
-            self._info = 0.5 * (self._info + self._info.T)  # rounding asymmetry never builds up
+            # rounding asymmetry never builds up (in place: _info_diag stays its diagonal)
+            self._info += self._info.T
+            self._info *= 0.5
             chol = linalg.cholesky(self._info, lower=True, check_finite=False)
             proj = project(chol, lay, self._sum_w, self._sum_w2)
             n = self.max_order
