@@ -19,7 +19,7 @@ biased low at lightly damped modes with short Welch segments, gives a usable flo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal, stats
@@ -326,7 +326,13 @@ def primary_error(
 
 
 def compare_primary(before: Assessment, e1: np.ndarray | None) -> rs.ErrorComparison:
-    """Drop of the primary error from the ``before`` model's to ``e1`` (same kind)."""
+    """Drop of the primary error from the ``before`` model's to ``e1`` (same kind): the
+    batch-mean comparison (:func:`.residuals.compare_errors`, over records like this one) and
+    the one conditional on the two predictions (:func:`.residuals.compare_predictions`, this
+    record's noise: sees a drop confined to where the input drives the effect), Bonferroni."""
     if e1 is None:
         return rs.ErrorComparison(0.0, 1.0, 0)
-    return rs.compare_errors(before.primary_error, e1, before.y_std, rank_batches=RANK_BATCHES)
+    e0 = before.primary_error
+    batch = rs.compare_errors(e0, e1, before.y_std, rank_batches=RANK_BATCHES)
+    cond = rs.compare_predictions(e0, e1, before.y_std)
+    return replace(batch, p_value=float(min(1.0, 2.0 * min(batch.p_value, cond.p_value))))

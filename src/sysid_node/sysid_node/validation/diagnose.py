@@ -6,8 +6,10 @@ model; a hypothesis whose gate fires (p < 0.01, Bonferroni-corrected over channe
 candidate signals) is tried: the structure with the effect added is re-fitted on the
 estimation part and its primary validation error (free run or one-step, :mod:`.assess`) is
 compared with the current model's. The score is the relative drop of that error; the
-hypothesis is significant when the gate fires, the drop is significant (Diebold-Mariano,
-p < 0.01), at least :data:`MIN_DROP`, and the re-fitted parameters agree with the evidence.
+hypothesis is significant when the gate fires, the drop is significant (p < 0.01:
+Diebold-Mariano over batch means or conditional on the two predictions, Bonferroni;
+:func:`.assess.compare_primary`), at least :data:`MIN_DROP`, and the re-fitted parameters agree
+with the evidence.
 """
 
 from __future__ import annotations

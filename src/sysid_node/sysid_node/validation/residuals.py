@@ -454,3 +454,75 @@ def _batch_means(d: np.ndarray, batches: int) -> tuple[np.ndarray, int]:
     b = int(max(2, min(batches, d.size // 10)))
     k = d.size // b
     return d[: b * k].reshape(b, k).mean(axis=1), b
+
+
+#: AR order of the noise model of :func:`compare_predictions` (a few lightly damped modes).
+NOISE_AR_ORDER = 20
+
+
+def _ar_weighted_variance(eps: np.ndarray, delta: np.ndarray, order: int) -> float:
+    """var(sum_t delta_t eps_t) for fixed delta and stationary AR(order) noise eps fitted to
+    ``eps``: eps = eta / A(q), so sum delta eps = sum eta (delta filtered backwards by 1/A) and
+    the variance is var(eta) times the energy of that filtered delta (the noise's whole memory,
+    also where delta rings at the noise's own resonance). An AR fit with a root on or outside
+    the unit circle gives inf (no test)."""
+    w, a = prewhiten(eps, order)
+    if a.size and np.max(np.abs(np.roots(np.r_[1.0, -a]))) >= 1.0:
+        return np.inf
+    s2 = float(np.mean(w[a.size :] ** 2))
+    g = signal.lfilter([1.0], np.r_[1.0, -a], delta[::-1])[::-1]
+    return s2 * float(np.sum(g**2))
+
+
+def compare_predictions(
+    e0: np.ndarray, e1: np.ndarray, scale: np.ndarray | None = None
+) -> ErrorComparison:
+    """Is model 1's prediction better than model 0's on this record? A Diebold-Mariano test
+    conditional on the two predictions (fixed design; Harvey, Leybourne and Newbold's forecast
+    encompassing form): with delta = e0 - e1 (the difference of the predictions, a function of
+    the input and the estimation data only) the loss differential is
+    d = e0^2 - e1^2 = 2 delta (e0 - delta / 2), and under "equally good" (e0 = delta / 2 + eps)
+    its sum is 2 sum delta eps, whose randomness is the validation noise eps alone. Its variance
+    is taken as the larger of (a) the HAC estimate of the products delta_t epsh_t (epsh = e0 -
+    lambda delta, lambda the least-squares weight of delta in e0: heteroscedasticity) over its
+    integrated correlation time and (b) the stationary-AR noise model's
+    (:func:`_ar_weighted_variance`, channels added as fully correlated: an upper bound), which
+    holds where delta is one burst as long as the noise's memory; Student's t with the
+    effective number of samples delta weighs ((sum delta^2)^2 / sum delta^4, over the
+    correlation time).
+
+    The unconditional batch-mean test (:func:`compare_errors`) asks whether the loss falls over
+    records like this one; a drop confined to where the input drives the effect (a multisine's
+    crest, a sweep crossing a mode) is one or two batches there, never significant however
+    large. Here the same burst counts by how far it stands above the noise.
+    """
+    e0 = np.atleast_2d(np.asarray(e0, float).T).T
+    e1 = np.atleast_2d(np.asarray(e1, float).T).T
+    s = np.ones(e0.shape[1]) if scale is None else np.maximum(np.asarray(scale, float), 1e-150)
+    a0, a1 = e0 / s, e1 / s
+    l0, l1 = np.sum(a0**2, axis=1), np.sum(a1**2, axis=1)
+    if not np.all(np.isfinite(l1)):
+        return ErrorComparison(0.0, 1.0, 0)
+    if not np.all(np.isfinite(l0)):
+        return ErrorComparison(1.0, 0.0, 0)
+    tot0 = float(np.sum(l0))
+    drop = 1.0 - float(np.sqrt(np.sum(l1) / tot0)) if tot0 > 0 else 0.0
+    delta = a0 - a1
+    w = np.sum(delta**2, axis=1)
+    sdd = float(np.sum(w))
+    if sdd <= 0 or e0.shape[0] < 4 * NOISE_AR_ORDER:
+        return ErrorComparison(drop, 1.0, 0)
+    lam = float(np.sum(delta * a0)) / sdd
+    eps = a0 - lam * delta
+    x = np.sum(delta * eps, axis=1)
+    tau = correlation_time(x)
+    v_hac = float(np.mean(x**2)) * tau * x.size
+    v_ar = sum(np.sqrt(_ar_weighted_variance(eps[:, c], delta[:, c], NOISE_AR_ORDER))
+               for c in range(e0.shape[1])) ** 2
+    var = max(v_hac, v_ar)
+    if not np.isfinite(var) or var <= 0:
+        return ErrorComparison(drop, 1.0, 0)
+    t = float(np.sum(l0 - l1)) / (2.0 * np.sqrt(var))
+    n_eff = sdd**2 / max(float(np.sum(w**2)), 1e-300)
+    dof = max(n_eff / tau - 1.0, 1.0)
+    return ErrorComparison(drop, float(stats.t.sf(t, dof)), int(dof))
