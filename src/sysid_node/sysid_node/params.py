@@ -111,7 +111,8 @@ PARAMS: tuple[ParamSpec, ...] = (
        "the Welch spectrum of an output (or input) stands above its noise floor (at most "
        f"{NYQUIST_SAFE_FRACTION:g} x sample rate; core/band.py) and the data are decimated "
        "to match (decimation 0); rechecked every 2 s of data, it then only widens (structure "
-       "twice in a row above 0.85 of it); a band change rebuilds the estimator from the last "
+       "twice in a row above 0.85 of it) and its lowest peak only moves down; a band change "
+       "rebuilds the estimator from the last "
        "10 s of raw data, the tracks are kept", lo=0.0, hi=50000.0, unit="Hz"),
     _p("damping_min", float, 0.0, "Smallest damping ratio of a reported mode [-]",
        lo=0.0, hi=1.0),

@@ -33,7 +33,8 @@ The test errs on the safe side: anything above the floor that is not a mode (a f
 accelerometer feed-through, rising sensor noise, an excitation's own peaks) only widens the
 band back towards ``0.4 fs``, which is what a configured ``freq_max: 0`` gave before. The
 pipeline (``pipeline.py``) decimates to match the band (``decimation.auto_factor``) and rechecks
-it as data come (a widening only; see ``params.py``, ``freq_max``).
+it as data come (the band only widens, its lowest peak only moves down; see ``params.py``,
+``freq_max``, and ``Pipeline._recheck_low``).
 """
 
 from __future__ import annotations
