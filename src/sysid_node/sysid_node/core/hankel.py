@@ -60,7 +60,7 @@ class Layout:
 
 
 @lru_cache(maxsize=64)
-def _window_order(i: int, m: int, l: int) -> np.ndarray:
+def window_order(i: int, m: int, l: int) -> np.ndarray:
     """Column permutation from a window in sample-major order (sample t, channel c at
     t (m + l) + c, channels [u; y]) to the (A1) order [u_p; y_p; u_f; y_f]."""
     idx = np.arange(2 * i * (m + l)).reshape(2 * i, m + l)
@@ -86,4 +86,4 @@ def window_rows_packed(data: np.ndarray, m: int, i: int) -> np.ndarray:
     step = data.strides[0]
     windows = as_strided(data, shape=(j, 2 * i * width), strides=(step, data.strides[1]),
                          writeable=False)
-    return windows[:, _window_order(i, m, width - m)]
+    return windows[:, window_order(i, m, width - m)]

@@ -29,7 +29,7 @@ from scipy import linalg
 from scipy.signal import lfilter
 
 from .batch import model_from_projection
-from .hankel import Layout, _window_order, window_rows_packed
+from .hankel import Layout, window_order, window_rows_packed
 from .inputs import InputError, as_2d, check_rate, finite_rows
 from .modal import ModalParameters, select_modes
 from .model import IdentifiedModel
@@ -495,7 +495,7 @@ class RecursiveDSRA:
             1, 2, 0)
         per_sample[2 * i - 1, :m] = th[:, npast : npast + m].T
         coef = np.zeros((self.layout.dim, 2 * l))
-        coef[:, :l] = per_sample.reshape(-1, l)[_window_order(i, m, l)]
+        coef[:, :l] = per_sample.reshape(-1, l)[window_order(i, m, l)]
         coef[: th.shape[1], l:] = th.T
         self._coef, self._coef_of = coef, th
         return coef
