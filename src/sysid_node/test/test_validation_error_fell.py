@@ -1,0 +1,25 @@
+"""A missing mode confirmed where the trial lowered the error, not at the residual's highest
+peak (validation.diagnose.error_fell_at): under a sweep the residual's peak may sit where the
+sweep lingered, away from the mode whose absence it shows (a drawn case of the hidden-effect
+suite that the peak-only rule rejected although the re-fit found the mode within 0.3 %)."""
+
+from __future__ import annotations
+
+import pytest
+from sysid_node.validation import suite as S
+from sysid_node.validation.workflow import Options, run_validation
+
+
+def test_a_new_mode_where_the_error_fell_is_confirmed_and_its_evidence_says_so():
+    seed = 1100011  # missing_mode draw 11 of the suite: sweep input, 186 Hz, mode at 0.50 Hz
+    sc = S.draw("missing_mode", seed, "sweep")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    top = out.hyps[0]
+    assert top.effect == "missing_mode" and top.significant
+    f_true = sc.truth["frequency_hz"]
+    assert top.parameters["frequency_hz"] == pytest.approx(f_true, rel=0.02)
+    fell = top.parameters["evidence_frequency_hz"]  # the evidence agrees with the parameters
+    assert abs(fell - f_true) <= max(1.5 * top.parameters["resolution_hz"], 0.05 * f_true)
+    assert abs(top.parameters["peak_frequency_hz"] - f_true) > 0.5 * f_true
+    assert "the error fell most at" in top.evidence
+    assert out.added[:1] == ["missing_mode"]
