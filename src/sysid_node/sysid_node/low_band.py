@@ -6,8 +6,9 @@ period of the lowest peak, within a row budget (``params.effective_block_rows``)
 750 Hz would need 190 block rows. When that budget caps the window (``params.window_capped``)
 and the peaks leave a gap (``core.band.split_frequency``), the modes below the gap come from a
 second estimator fed the same samples, low-passed and decimated to the lowest rate at which the
-default block rows span half a period of the lowest peak and the split stays below a third of
-the rate: its window spans the lowest mode, its memory holds as many samples per period as the
+default block rows span their share of a period of the lowest peak (half, a full one output-only
+from one output: ``params.window_periods``) and the split stays below a third of the rate:
+its window spans the lowest mode, its memory holds as many samples per period as the
 main estimator's when that one's window fits, and its model order is not spent on the modes
 above. The main estimator's modes below the split are replaced by this one's
 (``pipeline.Pipeline._update``); both realize at ``realization_rate`` in data time.
@@ -57,7 +58,9 @@ class LowBand:
                  n_peaks: int = 0) -> None:
         self.split_hz = float(split_hz)
         rows = P.effective_block_rows(values, n_outputs, n_inputs)  # the default window
-        rate = max(RATE_PER_SPLIT * split_hz, 2.0 * low_hz * rows)
+        # the lowest rate at which the default rows span their share of the lowest period
+        rate = max(RATE_PER_SPLIT * split_hz,
+                   low_hz * rows / P.window_periods(n_outputs, n_inputs))
         factor = max(1, min(MAX_FACTOR, math.floor(fs / rate + 1e-9)))
         self.decimator = Decimator(factor, fs)
         self.rate = fs / factor

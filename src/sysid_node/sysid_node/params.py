@@ -77,7 +77,8 @@ PARAMS: tuple[ParamSpec, ...] = (
        "Hankel block rows i of the recursive DSRA (A1) [-]; 0 = auto: about "
        f"{AUTO_WINDOW_ROWS} rows in the stacked window 2 i (m + l) (35 for 1 input + 1 output, "
        "10 for 1 + 6), enough for the model order, and with the automatic band (freq_max 0) "
-       "enough to span half a period of its lowest peak (0.35 s until the band is chosen), "
+       "enough to span half a period of its lowest peak (a full one output-only from one "
+       "output; 0.35 s, there 0.7 s, until the band is chosen), "
        "with a configured band a full period of its lowest lightly damped (<= 5 %) confirmed "
        f"mode (checked every 2 s; it only grows; at most {MAX_GROWN_FUTURE_ROWS} / l block "
        f"rows); up to {MAX_AUTO_WINDOW_ROWS} rows",
@@ -311,8 +312,9 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     a realization grows with the cube of that size), at most 35 (the seed example's value), at
     least enough block rows for the model order (l (i - 1) >= order + 2), and, when the lowest
     mode ``low_hz`` [Hz] is known (the automatic band's lowest peak, ``core/band.py``), enough
-    for the Hankel window to span half its period at the identification rate ``fs`` [Hz]
-    (i >= fs / (2 low_hz); up to MAX_AUTO_WINDOW_ROWS rows)."""
+    for the Hankel window to span ``window_periods`` of its period at the identification rate
+    ``fs`` [Hz] (half a period, a full one output-only from one output; up to
+    MAX_AUTO_WINDOW_ROWS rows)."""
     i = int(values.get("block_rows", 0))
     if i > 0:
         return i
@@ -321,7 +323,8 @@ def effective_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int,
     width = 2 * (n_inputs + n_outputs)
     i = max(need, 2, min(35, round(AUTO_WINDOW_ROWS / width)))
     if math.isfinite(low_hz) and low_hz > 0 and math.isfinite(fs) and fs > 0:
-        i = max(i, min(_half_period_rows(fs, low_hz), max_auto_rows(n_outputs, n_inputs)))
+        i = max(i, min(_period_rows(fs, low_hz, n_outputs, n_inputs),
+                       max_auto_rows(n_outputs, n_inputs)))
     return int(min(i, SPECS["block_rows"].hi))
 
 
@@ -351,7 +354,9 @@ def period_block_rows(values: dict[str, Any], n_outputs: int, n_inputs: int, fs:
     base = effective_block_rows(values, n_outputs, n_inputs)
     if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(mode_hz) and mode_hz > 0):
         return base
-    want = effective_block_rows(values, n_outputs, n_inputs, fs, 0.5 * mode_hz)
+    # the automatic rule spans window_periods of a period: of the mode over that share
+    span = window_periods(n_outputs, n_inputs)
+    want = effective_block_rows(values, n_outputs, n_inputs, fs, span * mode_hz)
     return max(base, min(want, MAX_GROWN_FUTURE_ROWS // max(n_outputs, 1)))
 
 
@@ -365,10 +370,28 @@ def _half_period_rows(fs: float, low_hz: float) -> int:
     return math.ceil(fs / (2.0 * low_hz) - 1e-9)
 
 
+def window_periods(n_outputs: int, n_inputs: int) -> float:
+    """Share of the lowest mode's period the automatic Hankel window spans: half, and at least
+    enough for the m + l rows of a block row to hold one period's samples, i (m + l) >= fs /
+    low_hz: a full period output-only from one output. There the window's lags are the only
+    thing that tells neighbouring low modes apart (no shapes over outputs, no input to
+    project on): with half a period, the random suite's one-output records lost a 5.8 Hz
+    mode next to a 4.1 Hz one, or a 2.1 Hz mode next to a 3.8 Hz one, for 10-20 s."""
+    return max(0.5, 1.0 / max(n_outputs + n_inputs, 1))
+
+
+def _period_rows(fs: float, low_hz: float, n_outputs: int, n_inputs: int) -> int:
+    """Block rows for the Hankel window to span ``window_periods`` of a period of ``low_hz``
+    at ``fs``."""
+    return math.ceil(window_periods(n_outputs, n_inputs) * fs / low_hz - 1e-9)
+
+
 def window_capped(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
                   low_hz: float) -> bool:
     """The automatic Hankel window cannot span half a period of ``low_hz`` [Hz] at ``fs`` [Hz]
-    within MAX_AUTO_WINDOW_ROWS (``effective_block_rows``; False with configured block rows)."""
+    within MAX_AUTO_WINDOW_ROWS (``effective_block_rows``; False with configured block rows).
+    Half a period is what it needs: a window capped short of ``window_periods`` (a full
+    period from one output) but spanning half of it does not split the band."""
     if int(values.get("block_rows", 0)) > 0 or not (math.isfinite(low_hz) and low_hz > 0):
         return False
     return _half_period_rows(fs, low_hz) > max_auto_rows(n_outputs, n_inputs)

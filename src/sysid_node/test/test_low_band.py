@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from scipy import signal
 from sysid_node.core.band import BandChoice, split_frequency, structure_band
-from sysid_node.low_band import max_split_hz
+from sysid_node.core.recursive import RecursiveDSRA
+from sysid_node.low_band import LowBand, max_split_hz
 from sysid_node.scenarios.draw import drifting_mode
 from sysid_node.suite import T0_NS as T0
 from sysid_node.suite import run_output_only
@@ -171,3 +172,15 @@ def test_a_configured_band_window_spans_its_lowest_lightly_damped_mode(damping, 
         assert pl.block_rows == 70 and len(rows) == 1, logs  # l i <= 70 (80 would span it)
     else:
         assert pl.block_rows == 35 and not rows, logs
+
+
+@pytest.mark.parametrize(("outputs", "rate", "rows"), [(1, 499.0 / 8, 36), (2, 499.0 / 4, 36)])
+def test_the_low_group_rate_lets_its_default_rows_span_their_share_of_the_period(outputs, rate,
+                                                                                rows):
+    """499 Hz split at 11 Hz, lowest peak 1.75 Hz: 35 default rows span half a period at 122.5
+    Hz (decimated by 4) and a full one, as one output without input needs
+    (``params.window_periods``), at 61.25 Hz (by 8), not 72 rows at 124.75 Hz."""
+    low = LowBand(RecursiveDSRA, P.defaults(), outputs, 0, 499.0, 10.97, 1.75)
+    assert low.rate == pytest.approx(rate)
+    assert low.block_rows == rows
+    assert low.block_rows / low.rate >= P.window_periods(outputs, 0) / 1.75

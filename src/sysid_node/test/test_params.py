@@ -146,7 +146,10 @@ def test_online_lpv_parameters_checked_with_one_line_reasons(tmp_path):
      (1, 1, 100.0, 2.0, 35),  # the cost rule already spans it
      (1, 0, 1000.0, 0.5, 140),  # capped at MAX_AUTO_WINDOW_ROWS rows of the window
      (6, 1, 1000.0, 0.5, 20),
-     (2, 1, 877.0, float("nan"), 23)],  # no lowest peak known: the cost rule
+     (2, 1, 877.0, float("nan"), 23),  # no lowest peak known: the cost rule
+     (2, 0, 133.0, 1.559, 43),  # output-only from two outputs: half a period
+     (1, 0, 133.0, 1.559, 86),  # ... from one output: a full period (43 rows before)
+     (1, 0, 310.0, 1.816, 140)],  # 171 rows capped (86 before)
 )
 def test_auto_block_rows_span_half_a_period_of_the_lowest_peak(outputs, inputs, fs, low, rows):
     got = P.effective_block_rows(P.defaults(), outputs, inputs, fs, low)
@@ -163,7 +166,8 @@ def test_auto_block_rows_span_half_a_period_of_the_lowest_peak(outputs, inputs, 
      (1, 1, 200.0, 10.0, 35),  # the automatic window spans it already
      (6, 1, 500.0, 2.0, 11),  # 250 rows asked: 70 // 6
      (5, 0, 128.0, 1.2, 14),  # the automatic 14 rows have l i = 70 already
-     (1, 1, 200.0, float("nan"), 35)],  # no mode: the automatic window
+     (1, 1, 200.0, float("nan"), 35),  # no mode: the automatic window
+     (1, 0, 200.0, 4.0, 50)],  # output-only from one output: a full period too, not two
 )
 def test_a_configured_band_window_spans_a_full_period_within_its_cost(outputs, inputs, fs,
                                                                      mode, rows):
@@ -173,3 +177,15 @@ def test_a_configured_band_window_spans_a_full_period_within_its_cost(outputs, i
         P.defaults(), outputs, inputs))
     assert P.period_block_rows({**P.defaults(), "block_rows": 12}, outputs, inputs, fs,
                                mode) == 12  # a configured value is kept
+
+
+def test_one_output_without_input_spans_a_full_period_but_splits_only_short_of_half():
+    """The m + l rows of a block row hold one period's samples: a full period from one output
+    without input, half of one otherwise; the band splits only when half a period does not
+    fit (a one-output window capped between half and a full period keeps one estimator)."""
+    assert P.window_periods(1, 0) == 1.0
+    assert P.window_periods(1, 1) == P.window_periods(2, 0) == P.window_periods(6, 1) == 0.5
+    v = P.defaults()
+    assert P.effective_block_rows(v, 1, 0, 310.0, 1.816) == P.max_auto_rows(1, 0) == 140
+    assert not P.window_capped(v, 1, 0, 310.0, 1.816)  # 86 rows span half a period
+    assert P.window_capped(v, 1, 0, 499.0, 1.75)  # 143 rows do not fit in 140

@@ -25,7 +25,8 @@ modes. This module finds the band from the data, with no model:
    The first bins have no bins below them: when they hold structure (a 2 Hz mode at 400 Hz
    is in the first 1.7 Hz bin of 4 s of data), the test runs again below them on a spectrum of
    ``FINE_SEGMENTS`` segments with ``FINE_PROMINENCE`` (:func:`_fine_low`). The
-   pipeline gives the Hankel window half of its period (``params.effective_block_rows``: block
+   pipeline gives the Hankel window half of its period (a full one output-only from one
+   output; ``params.effective_block_rows``: block
    rows that span a few milliseconds see a mode of a period of hundreds as a slow trend, not
    as an oscillation) and the memory ``memory_periods`` of them (``params.effective_lambda``).
 
