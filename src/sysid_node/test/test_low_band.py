@@ -184,3 +184,24 @@ def test_the_low_group_rate_lets_its_default_rows_span_their_share_of_the_period
     assert low.rate == pytest.approx(rate)
     assert low.block_rows == rows
     assert low.block_rows / low.rate >= P.window_periods(outputs, 0) / 1.75
+
+
+@pytest.mark.slow
+def test_one_output_output_only_low_neighbours_are_told_apart():
+    """One output, no input, 200 Hz, modes at 2.5 Hz (1 % damped), 3.4 (3 %), 7, 9 and 30 Hz:
+    the window spans a full period of the lowest peak (89 block rows; half a period, 45 rows,
+    identified none of the four low modes in the last 6 s of 20 s)."""
+    rng = np.random.default_rng(7)
+    modes = ((2.5, 0.01), (3.4, 0.03), (7.0, 0.01), (9.0, 0.02), (30.0, 0.01))
+    fs, n = 200.0, 4000
+    q = np.stack([_resonance(rng, fs, f, z, n) for f, z in modes], axis=1)
+    y = q @ rng.uniform(0.4, 1.0, len(modes))
+    y = (y + 0.05 * y.std() * rng.standard_normal(n))[:, None]
+    pl, recs = run_output_only(y, fs, None, 40)
+    assert pl.block_rows >= fs / pl.band_low  # a full period
+    t = (np.array([r.stamp_ns for r in recs]) - T0) * 1e-9
+    last = [r for r, tk in zip(recs, t, strict=True) if tk >= t[-1] - 6.0]
+    for f, _ in modes:
+        right = [any(m.status == "tracked" and abs(m.frequency_hz / f - 1) <= 0.02
+                     for m in r.modes) for r in last]
+        assert np.mean(right) >= 0.8, (f, np.mean(right))
