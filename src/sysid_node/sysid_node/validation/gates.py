@@ -33,7 +33,15 @@ from . import residuals as rs
 from .assess import Assessment, compare_primary, primary_error
 from .augment import rotor_phase
 from .data import ValidationData, ValidationError
-from .models import TIME_SIGNAL, FittedModel, fit, identify_dsra, lagged, shift
+from .models import (
+    TIME_SIGNAL,
+    FittedModel,
+    dominant_modes,
+    fit,
+    identify_dsra,
+    lagged,
+    shift,
+)
 from .simulation import (
     LinearDynamics,
     fit_output_error,
@@ -607,7 +615,8 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
     if not data.n_inputs or cur.model is None or cur.locals or spec.feedback:
         return None
     top = int(max(MAX_DELAY_SAMPLES, int(peak_lag) + 2))
-    key = ("input_delay_scan", spec.delay, spec.order, spec.extra_order, spec.block_rows, top)
+    key = ("input_delay_scan", spec.delay, spec.order, spec.extra_order, spec.block_rows,
+           spec.reduce_from, top)
     if key in ctx.fitted:
         return ctx.fitted[key]
     est = split.est
@@ -619,8 +628,8 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
         if d not in memo:
             u = shift(data.u, spec.delay + d)
             try:
-                m = identify_dsra(data.y, u, data.fs, order, spec.block_rows, split.est_segments)
-            except ValidationError:
+                m = _scan_model(data, u, spec, split, order)
+            except (ValidationError, np.linalg.LinAlgError):
                 m = None
             if m is None or spectral_radius(m.A) >= 1.0:
                 memo[d] = (np.inf, None)
@@ -635,6 +644,18 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
     errs = np.array([cost(float(d))[0] for d in grid])
     ctx.fitted[key] = (grid, errs, cost)
     return ctx.fitted[key]
+
+
+def _scan_model(data: ValidationData, u: np.ndarray, spec, split: Split, order: int):
+    """The delay scan's dynamics, realized as the model's are (:func:`.models.fit`): directly
+    at ``order``, or (``spec.reduce_from``) the dominant modes of a higher-order realization;
+    at the nominal order a realization can fail (unstable, noise modes) where the model's
+    structure does not, and the scan would then compare a broken fit with the right delay."""
+    segs = split.est_segments
+    if spec.reduce_from > order:
+        big = identify_dsra(data.y, u, data.fs, spec.reduce_from, spec.block_rows, segs)
+        return dominant_modes(big, data.y, u, split.est, order)
+    return identify_dsra(data.y, u, data.fs, order, spec.block_rows, segs)
 
 
 def input_delay(ctx: Context) -> Hypothesis:
