@@ -421,7 +421,7 @@ def fit(
         alt = _hinted(fm, like, data)
         if alt is not None:
             _fit_simulation(alt, data, phi, split)
-            if _estimation_cost(alt, data, split) < _estimation_cost(fm, data, split):
+            if estimation_cost(alt, data, split) < estimation_cost(fm, data, split):
                 return alt
     elif phi is not None:
         _refine_theta(fm, data, phi, yc, ue, split)
@@ -466,7 +466,7 @@ def _hinted(fm: FittedModel, like: FittedModel | None, data: ValidationData):
     return alt
 
 
-def _estimation_cost(fm: FittedModel, data: ValidationData, split: Split) -> float:
+def estimation_cost(fm: FittedModel, data: ValidationData, split: Split) -> float:
     """Mean square free-run error on the estimation samples, channels scaled by their
     variance (inf when the free run is unbounded)."""
     ys = fm.simulate(data)
