@@ -5,18 +5,24 @@ validation error per effect, the clean cases' additions, every gate's false-alar
 clean cases and the time per case.
 
     ros2_ws/env python benchmarks/validate_suite.py [--per-effect 15] [--clean 40] [--workers 2]
-        [--failures]
+        [--failures] [--ceiling] [--json PATH]
 
 The issue's suite (15 cases per effect, 40 clean); ``src/sysid_node/test/test_validation_suite.py``
 runs its first 6 cases per effect and all 40 clean ones (seeded draws of
 ``sysid_node.scenarios.draw_effects``; see ``sysid_node.validation.suite``). ``--failures``
-prints the per-case breakdown of the effect cases not ranked right.
+prints the per-case breakdown of the effect cases not ranked right. ``--ceiling`` also validates
+every effect case's clean twin (the same draw without the effect) and prints, per effect, the
+median ceiling (how far the baseline's error falls without the effect: the most any hypothesis
+can gain) and the share ranked right among the cases whose ceiling is at least 10 %.
+``--json`` writes the summary and every case's result.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from dataclasses import asdict
 
 from sysid_node.validation import suite as S
 
@@ -28,9 +34,12 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--failures", action="store_true",
                     help="one line per effect case not ranked right (gate, trial drop, note)")
+    ap.add_argument("--ceiling", action="store_true",
+                    help="also the clean twin's baseline error: the most each case can gain")
+    ap.add_argument("--json", metavar="PATH", help="write the summary and every case's result")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers)
+    results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers, args.ceiling)
     wall = time.perf_counter() - t0
     sm = S.summary(results)
     print(S.confusion_table(results))
@@ -40,6 +49,15 @@ def main() -> None:
             f"{eff:22s} {row['cases']:5d} {100 * row['right_first']:11.0f}% "
             f"{100 * row['median_drop']:11.0f}%"
         )
+    if args.ceiling:
+        print(f"\n{'effect':22s} {'median ceiling':>15s} {'detectable':>11s} "
+              f"{'right first of them':>20s} {'their median drop':>18s}")
+        for eff, row in sm["effects"].items():
+            if "detectable" in row:
+                print(f"{eff:22s} {100 * row['median_ceiling']:14.0f}% {row['detectable']:11d} "
+                      f"{100 * row['right_first_detectable']:19.0f}% "
+                      f"{100 * row['median_drop_detectable']:17.0f}%")
+        print(f"(detectable: ceiling >= {100 * S.DETECTABLE:.0f} %)")
     print(f"\nmedian drop of the validation error over the effect cases: "
           f"{100 * sm['median_drop']:.0f} %")
     print(f"clean cases: {sm['clean_cases']}, nothing added in "
@@ -52,6 +70,10 @@ def main() -> None:
         print("error:", err)
     if args.failures:
         print("\neffect cases not ranked right:\n" + S.failures(results))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"summary": sm, "cases": [asdict(r) for r in results]}, f, indent=1,
+                      default=float)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -37,6 +38,10 @@ CLEAN_CASES = 40
 TEST_CASES_PER_EFFECT = 6
 TEST_CLEAN_CASES = CLEAN_CASES
 SEED = 11
+#: A case is detectable when its effect raises the baseline's validation error by at least
+#: this share over its clean twin's (:func:`ceiling`): twice the 5 % an addition must gain,
+#: as the twin's new noise draw alone moves the comparison by several percent.
+DETECTABLE = 0.10
 
 
 @dataclass
@@ -59,6 +64,7 @@ class CaseResult:
     own_score: float = 0.0  # the drawn effect's hypothesis: trial drop of the primary error
     own_drop_p: float = 1.0  # ... its Diebold-Mariano p-value
     own_note: str = ""  # ... its trial note (why it was not confirmed)
+    ceiling: float = float("nan")  # :func:`ceiling` (NaN: not computed)
 
 
 def cases(
@@ -80,15 +86,27 @@ def _data(sc) -> ValidationData:
 
 def draw(effect: str | None, seed: int, kind: str):
     """The case's record (a draw with no room for the effect is redrawn from the next seed)."""
+    return _draws(effect, seed, kind, twin=False)[0]
+
+
+def draw_twin(effect: str, seed: int, kind: str):
+    """The case's record and its clean twin: the same structure, input, process noise, sample
+    rate and length without the effect (the measurement noise is a new draw of the same
+    level). The feedback record's disturbance is rescaled by the effect itself: its twin is
+    not one (use only for the other effects)."""
+    return _draws(effect, seed, kind, twin=True)
+
+
+def _draws(effect: str | None, seed: int, kind: str, twin: bool):
     from ..scenarios.draw_effects import draw_hidden_effect
 
     for attempt in range(20):
         s = seed + 7919 * attempt
         fs = float(np.exp(np.random.default_rng(s).uniform(np.log(100.0), np.log(1000.0))))
 
-        def one(duration: float, s: int = s, fs: float = fs):
+        def one(duration: float, eff: str | None = effect, s: int = s, fs: float = fs):
             return draw_hidden_effect(
-                effect,
+                eff,
                 np.random.default_rng(s + 1),
                 fs=fs,
                 excitation_kind=kind,
@@ -101,19 +119,43 @@ def draw(effect: str | None, seed: int, kind: str):
             if effect in ("missing_mode", "periodic_disturbance"):  # may sit an octave below
                 f_low = min(f_low, 0.5 * max(0.5, fs / 200.0))
             n = int(np.clip(CYCLES * fs / f_low, *SAMPLES))
-            return one(n / fs)
+            return one(n / fs), (one(n / fs, None) if twin else None)
         except ValueError:
             continue
     raise RuntimeError(f"no draw of {effect} from seed {seed}")
 
 
-def run_case(case: tuple[str | None, int, str]) -> CaseResult:
-    """Validate one case with the nominal order and ``--auto``."""
+def ceiling(effect: str, seed: int, kind: str) -> float:
+    """The most any hypothesis can lower the case's validation error: the relative drop of the
+    baseline's primary NRMSE from the record to its clean twin (:func:`draw_twin`), both with
+    the nominal order. Near zero, the linear model already absorbs the drawn effect (the
+    generator sizes it against the true linear system, not against the best linear fit);
+    NaN for feedback (no twin), when either baseline fails or when the two are scored on
+    different errors."""
+    from .workflow import Options, baseline_assessment
+
+    if effect == "feedback":
+        return float("nan")
+    sc, clean = draw_twin(effect, seed, kind)
+    try:
+        a = [baseline_assessment(_data(x), Options(order=sc.nominal_order))[3] for x in (sc, clean)]
+    except (ValidationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return float("nan")
+    if a[0].primary != a[1].primary:  # one of them scored as closed loop: not comparable
+        return float("nan")
+    e = [x.primary_nrmse for x in a]
+    return float(1.0 - e[1] / max(e[0], 1e-300))
+
+
+def run_case(case: tuple[str | None, int, str], with_ceiling: bool = False) -> CaseResult:
+    """Validate one case with the nominal order and ``--auto`` (and its :func:`ceiling`)."""
     from .workflow import Options, run_validation
 
     effect, seed, kind = case
     sc = draw(effect, seed, kind)
     res = CaseResult(effect, seed, kind, sc.fs, float(sc.truth.get("size", 0.0)), None)
+    if with_ceiling and effect is not None:
+        res.ceiling = ceiling(effect, seed, kind)
     t0 = time.perf_counter()
     try:
         out = run_validation(_data(sc), Options(order=sc.nominal_order, auto=True))
@@ -135,13 +177,16 @@ def run_case(case: tuple[str | None, int, str]) -> CaseResult:
     return res
 
 
-def run_suite(case_list: list | None = None, workers: int = 2) -> list[CaseResult]:
+def run_suite(
+    case_list: list | None = None, workers: int = 2, with_ceiling: bool = False
+) -> list[CaseResult]:
     """Every case on ``workers`` processes (results in case order)."""
     case_list = cases() if case_list is None else case_list
+    one = partial(run_case, with_ceiling=with_ceiling)
     if workers <= 1:
-        return [run_case(c) for c in case_list]
+        return [one(c) for c in case_list]
     with ProcessPoolExecutor(workers) as ex:
-        return list(ex.map(run_case, case_list, chunksize=1))
+        return list(ex.map(one, case_list, chunksize=1))
 
 
 def summary(results: list[CaseResult]) -> dict:
@@ -158,6 +203,7 @@ def summary(results: list[CaseResult]) -> dict:
             "right_first": sum(r.first == eff for r in rs_) / len(rs_),
             "median_drop": float(np.median([r.drop for r in rs_])),
             "ranked_first": dict(firsts),
+            **_detectable(rs_),
         }
     clean = [r for r in results if r.effect is None]
     gates = {
@@ -174,6 +220,23 @@ def summary(results: list[CaseResult]) -> dict:
         "gate_false_alarm": gates,
         "seconds_per_case": float(np.mean([r.seconds for r in results])),
         "errors": [f"{r.effect} {r.seed}: {r.error}" for r in results if r.error],
+    }
+
+
+def _detectable(rs_: list[CaseResult]) -> dict:
+    """Where ceilings were computed: the cases at or above :data:`DETECTABLE`, the share of
+    them ranked right and their median drop, and the median ceiling."""
+    ceil = [r.ceiling for r in rs_ if np.isfinite(r.ceiling)]
+    if not ceil:
+        return {}
+    det = [r for r in rs_ if np.isfinite(r.ceiling) and r.ceiling >= DETECTABLE]
+    return {
+        "detectable": len(det),
+        "right_first_detectable": (sum(r.first == r.effect for r in det) / len(det)
+                                   if det else float("nan")),
+        "median_ceiling": float(np.median(ceil)),
+        "median_drop_detectable": (float(np.median([r.drop for r in det])) if det
+                                   else float("nan")),
     }
 
 
@@ -202,6 +265,8 @@ def failures(results: list[CaseResult]) -> str:
             f"{r.effect[:13]:13s} {r.seed} {r.kind[:5]:5s} {r.fs:5.0f} Hz size {r.size:5.1f} "
             f"first {str(r.first)[:13]:13s} {r.primary or '-':8s} {r.status or '-':9s} gate "
             f"p={r.gates.get(r.effect, 1.0):.0e} trial drop {100 * r.own_score:4.0f} % "
-            f"p={r.own_drop_p:.0e}: {r.error or r.own_note}"
+            f"p={r.own_drop_p:.0e}"
+            + (f" ceiling {100 * r.ceiling:4.0f} %" if np.isfinite(r.ceiling) else "")
+            + f": {r.error or r.own_note}"
         )
     return "\n".join(lines)

@@ -113,17 +113,12 @@ def _baseline(
     return fm, choice
 
 
-def run_validation(data: ValidationData, opts: Options, source: str = "") -> Outcome:
-    """Baseline, compare, diagnose; then ``opts.add`` and/or ``--auto`` additions."""
-    t0 = time.perf_counter()
-    for name, _ in opts.add:
-        if name not in EFFECTS:
-            raise ValidationError(f"unknown effect {name!r}; one of {', '.join(EFFECTS)}")
-    if opts.signal and opts.signal not in data.signals:
-        raise ValidationError(
-            f"no candidate signal {opts.signal}; available: "
-            + (", ".join(sorted(data.signals)) or "-")
-        )
+def baseline_assessment(
+    data: ValidationData, opts: Options
+) -> tuple[Split, FittedModel, BaselineChoice | None, Assessment]:
+    """The split, the baseline model (order and horizon as ``opts`` asks), how it was chosen
+    and its assessment: what ``validate`` compares before any hypothesis. The primary error
+    is the free run, or the one-step prediction for output-only or closed-loop data."""
     need = 2 * (opts.block_rows or 10) * (1 + data.n_inputs + data.n_outputs) + 50
     split = make_split(data, opts.split, need, opts.split_mode)
     spec = ModelSpec(order=opts.order, block_rows=opts.block_rows or 20)
@@ -139,9 +134,24 @@ def run_validation(data: ValidationData, opts: Options, source: str = "") -> Out
                 "is scored"
             )
     base, choice = _baseline(data, split, opts, spec, criterion)
-    spec = base.spec
     before = assess(base, data, split, opts.max_lag, primary=criterion)
     before.primary_note = note
+    return split, base, choice, before
+
+
+def run_validation(data: ValidationData, opts: Options, source: str = "") -> Outcome:
+    """Baseline, compare, diagnose; then ``opts.add`` and/or ``--auto`` additions."""
+    t0 = time.perf_counter()
+    for name, _ in opts.add:
+        if name not in EFFECTS:
+            raise ValidationError(f"unknown effect {name!r}; one of {', '.join(EFFECTS)}")
+    if opts.signal and opts.signal not in data.signals:
+        raise ValidationError(
+            f"no candidate signal {opts.signal}; available: "
+            + (", ".join(sorted(data.signals)) or "-")
+        )
+    split, base, choice, before = baseline_assessment(data, opts)
+    spec = base.spec
     hyps = diagnose(data, split, spec, base, before, signal=opts.signal)
     current, cur_a, added, steps = base, before, [], []
     if opts.add:
