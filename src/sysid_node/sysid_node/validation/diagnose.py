@@ -173,12 +173,12 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
         cmp = compare_primary(ctx.assessment, e1)
         if best is None or cmp.drop > best[1].drop:
-            best = (fm, cmp, cand)
+            best = (fm, cmp, cand, e1)
     if best is None:
         h.trial_note = note
         h.evidence += "; " + note
         return
-    fm, cmp, chosen = best
+    fm, cmp, chosen, e1 = best
     alt = ""
     if chosen is not params:  # an alternative the gate also found beat its first choice
         alt = "; the trial with " + ", ".join(f"{k}={v}" for k, v in chosen.items())
@@ -186,7 +186,7 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         h.parameters = dict(chosen)
     params = chosen
     h.trial, h.score, h.drop_p = fm, max(0.0, cmp.drop), cmp.p_value
-    consistent, why = _parameters(h, ctx, fm, params)
+    consistent, why = _parameters(h, ctx, fm, params, e1)
     what = "free-run" if ctx.assessment.primary == "free_run" else "one-step"
     h.trial_note = (
         f"trial re-fit lowers the {what} validation error by {100 * cmp.drop:.0f} % "
@@ -288,9 +288,11 @@ def _refined_delay(
     return None if best is None else best[0]
 
 
-def _parameters(h: Hypothesis, ctx: Context, fm: FittedModel, params: dict) -> tuple[bool, str]:
+def _parameters(
+    h: Hypothesis, ctx: Context, fm: FittedModel, params: dict, e1: np.ndarray | None = None
+) -> tuple[bool, str]:
     """The hypothesis' parameters from the trial, checked against the evidence:
-    (consistent, note)."""
+    (consistent, note). ``e1``: the trial's primary validation error, when computed already."""
     data = ctx.data
     eff = h.effect
     if eff == "input_delay":
@@ -304,7 +306,7 @@ def _parameters(h: Hypothesis, ctx: Context, fm: FittedModel, params: dict) -> t
             "drift_per_s": [float(v) for v in fm.theta[1] / span],
         }
     elif eff == "missing_mode":
-        return _missing_mode_parameters(h, ctx, fm)
+        return _missing_mode_parameters(h, ctx, fm, e1)
     elif eff == "parameter_varying" and fm.affine is not None:
         am = fm.affine
         slopes = am.frequency_slopes_hz()
@@ -339,7 +341,9 @@ def _parameters(h: Hypothesis, ctx: Context, fm: FittedModel, params: dict) -> t
     return True, ""
 
 
-def _missing_mode_parameters(h: Hypothesis, ctx: Context, fm: FittedModel) -> tuple[bool, str]:
+def _missing_mode_parameters(
+    h: Hypothesis, ctx: Context, fm: FittedModel, e1: np.ndarray | None = None
+) -> tuple[bool, str]:
     """The re-fit's new mode nearest the residual peak; consistent when it lies within the
     peak's resolution (3 Welch bins or 5 %), or else within that of the frequency where the
     re-fit lowered the error most (:func:`error_fell_at`: a residual peak shaped by the input,
@@ -352,7 +356,7 @@ def _missing_mode_parameters(h: Hypothesis, ctx: Context, fm: FittedModel) -> tu
         return False, "the re-fit adds no new mode (parameters from the residual peak)"
     md = min(new, key=lambda m: abs(m.frequency_hz - f0))
     if abs(md.frequency_hz - f0) > tol:
-        fell, res = error_fell_at(ctx, fm)
+        fell, res = error_fell_at(ctx, fm, e1)
         near = min(new, key=lambda m: abs(m.frequency_hz - fell))
         if not abs(near.frequency_hz - fell) <= max(1.5 * res, G.NEAR_MODE * fell):
             return False, (
@@ -369,12 +373,16 @@ def _missing_mode_parameters(h: Hypothesis, ctx: Context, fm: FittedModel) -> tu
     return True, ""
 
 
-def error_fell_at(ctx: Context, fm: FittedModel) -> tuple[float, float]:
+def error_fell_at(
+    ctx: Context, fm: FittedModel, e1: np.ndarray | None = None
+) -> tuple[float, float]:
     """Frequency [Hz] where the trial ``fm`` lowered the primary validation error's power most
     (Welch spectra of both errors, summed over channels) and the spectra's resolution [Hz]
-    (NaN, NaN: the trial's free run diverges)."""
+    (NaN, NaN: the trial's free run diverges). ``e1``: the trial's primary validation error
+    when the caller has it (the confirmation computed it; not simulated again)."""
     e0 = ctx.assessment.primary_error
-    e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
+    if e1 is None:
+        e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
     if e1 is None or len(e1) != len(e0) or not np.all(np.isfinite(e1)):
         return float("nan"), float("nan")
     s0 = rs.residual_spectrum(e0, ctx.data.fs)

@@ -1,0 +1,41 @@
+"""Effects the baseline hides from the gates (drawn cases of the hidden-effect suite, issue #11):
+a sensor offset carried by a slow pole pair's initial state, a delay the Schroeder multisine
+shows through one mode's transient, a delay whose baseline horizon lost a mode, and a missing
+mode whose interleaved validation blocks are shorter than its period."""
+
+from __future__ import annotations
+
+import numpy as np
+from sysid_node.validation import diagnose as D
+from sysid_node.validation import gates as G
+from sysid_node.validation import suite as S
+from sysid_node.validation.assess import assess
+from sysid_node.validation.augment import ModelSpec
+from sysid_node.validation.baseline import select_baseline
+from sysid_node.validation.split import make_split
+
+
+def _context(effect: str, seed: int, kind: str):
+    """The suite case's baseline and its gate context (no trials: cheap)."""
+    sc = S.draw(effect, seed, kind)
+    data = S._data(sc)
+    split = make_split(data, 0.6, 2 * 10 * (1 + data.n_inputs + data.n_outputs) + 50)
+    base, _ = select_baseline(data, split, ModelSpec(), sc.nominal_order, None, "free_run")
+    a = assess(base, data, split, primary="free_run")
+    return sc, G.Context(data, split, base, a, dict(data.signals))
+
+
+def test_error_fell_at_uses_the_trial_error_it_is_given():
+    """The confirmation's trial error is handed down, not simulated again: the frequency is
+    where the given error fell (here: the model's own error with its 18-22 Hz band removed)."""
+    _, ctx = _context("missing_mode", 1100002, "multisine")
+    e0 = ctx.assessment.primary_error
+    f, res = D.error_fell_at(ctx, ctx.current, e0 - 0.99 * _band(e0, ctx.data.fs, 20.0))
+    assert 18.0 - res <= f <= 22.0 + res  # within the band taken out (18-22 Hz)
+
+
+def _band(e: np.ndarray, fs: float, f0: float) -> np.ndarray:
+    from scipy import signal
+
+    sos = signal.butter(2, [0.9 * f0, 1.1 * f0], "bandpass", fs=fs, output="sos")
+    return signal.sosfiltfilt(sos, e, axis=0)
