@@ -25,6 +25,24 @@ def _context(effect: str, seed: int, kind: str):
     return sc, G.Context(data, split, base, a, dict(data.signals))
 
 
+def test_an_offset_carried_by_a_slow_pole_pairs_initial_state_fires_the_bias_gate():
+    """Draw 10 (multisine, 367 Hz): the baseline spends its second pole pair on the offset
+    (0.02 Hz, 96 % damped, its initial state holding the offset over the record) and loses the
+    3.2 Hz mode; its error has no mean, the error of its input-driven part has."""
+    sc, ctx = _context("sensor_bias", 1105010, "multisine")
+    assert min(md.frequency_hz for md in ctx.current.modes()) < 0.5  # the slow pair
+    x0r = G.initial_response(ctx.current, ctx.data)
+    assert x0r is not None and np.std(x0r[ctx.split.val]) > 0.3 * np.std(ctx.data.y)
+    h = G.sensor_bias(ctx)
+    assert h.p_value < G.P_GATE and "without the initial-state response" in h.evidence
+
+
+def test_the_bias_gate_is_quiet_on_a_clean_record_with_an_initial_state():
+    _, ctx = _context(None, 1199003, "sweep")
+    assert G.initial_response(ctx.current, ctx.data) is not None
+    assert G.sensor_bias(ctx).p_value > G.P_GATE
+
+
 def test_error_fell_at_uses_the_trial_error_it_is_given():
     """The confirmation's trial error is handed down, not simulated again: the frequency is
     where the given error fell (here: the model's own error with its 18-22 Hz band removed)."""
