@@ -231,6 +231,29 @@ def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[C
     return [first, *rest]
 
 
+def rank_realizations(
+    data: ValidationData,
+    split: Split,
+    order: int | None,
+    block_rows: int | None,
+    criterion: str,
+) -> tuple[list[Candidate], list[Candidate], int, int]:
+    """Every candidate (horizon, order; at a given order also the dominant modes of a
+    realization of twice the order) fitted on the first part of the estimation samples and
+    scored on their held-out tail: (candidates, ranking with the parsimonious choice first,
+    fit samples, held-out samples)."""
+    inner = split.inner(SELECTION_FRACTION)
+    l, m = data.n_outputs, data.n_inputs
+    shortest = min(b - a for a, b in inner.est_segments)
+    cands: list[Candidate] = []
+    for i in horizons(inner.n_est, m, l, order, block_rows, shortest):
+        top = min(l * (i - 1), MAX_ORDER)
+        orders = [order] if order is not None else list(range(1, top + 1))
+        cands += _score_orders(data, inner, i, orders, criterion, reduce=order is not None)
+    scale = np.std(data.y[inner.val], axis=0)
+    return cands, _choose(cands, criterion, scale), inner.n_est, inner.n_val
+
+
 def select_baseline(
     data: ValidationData,
     split: Split,
@@ -244,18 +267,7 @@ def select_baseline(
     closed-loop data whose input is not exogenous)."""
     if criterion is None:
         criterion = "free_run" if data.n_inputs else "one_step"
-    inner = split.inner(SELECTION_FRACTION)
-    n_fit = inner.n_est
-    l, m = data.n_outputs, data.n_inputs
-    shortest = min(b - a for a, b in inner.est_segments)
-    cands: list[Candidate] = []
-    for i in horizons(n_fit, m, l, order, block_rows, shortest):
-        top = min(l * (i - 1), MAX_ORDER)
-        orders = [order] if order is not None else list(range(1, top + 1))
-        cands += _score_orders(data, inner, i, orders, criterion, reduce=order is not None)
-    scale = np.std(data.y[inner.val], axis=0)
-    ranked = _choose(cands, criterion, scale)
-    n_sel = inner.n_val
+    cands, ranked, n_fit, n_sel = rank_realizations(data, split, order, block_rows, criterion)
     spec = replace(spec, focus=criterion)
     for c in ranked:
         sp = replace(spec, order=c.order, block_rows=c.block_rows, reduce_from=c.reduce_from)

@@ -14,15 +14,18 @@ with the evidence.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from . import gates as G
 from . import residuals as rs
 from .assess import Assessment, compare_primary, primary_error
 from .augment import ModelSpec
+from .baseline import rank_realizations
 from .data import ValidationData, ValidationError
 from .gates import Context, Hypothesis
-from .models import FittedModel, estimation_cost, fit
+from .models import FittedModel, _plain, estimation_cost, fit, shift
 from .split import Split
 
 P_DROP = 1e-2
@@ -148,6 +151,48 @@ def _refit(
     return fm, ""
 
 
+def _delay_refit(ctx: Context, spec: ModelSpec, params: dict) -> tuple[FittedModel | None, str]:
+    """The delay's structure re-fitted as the model is and, when it differs, with the
+    realization the baseline's selection (:func:`.baseline.rank_realizations`) picks for the
+    delayed input; the lower estimation free-run error is kept. The model's horizon was
+    chosen for the undelayed input, whose subspace realization may have traded a mode for
+    the delay's phase; the delayed input's realization need not."""
+    fm, why = _refit(ctx, spec, "input_delay", params)
+    alt = _delayed_realization(ctx, spec, float(params["samples"]))
+    if alt is None:
+        return fm, why
+    fm2, why2 = _refit(ctx, alt, "input_delay", params)
+    if fm2 is None:
+        return (fm, why) if fm is not None else (None, why2)
+    if fm is None or estimation_cost(fm2, ctx.data, ctx.split) < estimation_cost(
+        fm, ctx.data, ctx.split
+    ):
+        return fm2, ""
+    return fm, why
+
+
+def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec | None:
+    """``spec`` with the horizon and realization (direct or dominant modes of a larger one)
+    that the baseline's selection picks for the input delayed by ``d`` samples at the
+    structure's order; None when they are the spec's own or there is no linear free run."""
+    data = ctx.data
+    if not data.n_inputs or ctx.assessment.primary != "free_run" or not _plain(ctx.current):
+        return None
+    shifted = replace(data, u=shift(data.u, d))
+    try:
+        _, ranked, _, _ = rank_realizations(
+            shifted, ctx.split, spec.order + spec.extra_order, None, "free_run"
+        )
+    except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    if not ranked:
+        return None
+    c = ranked[0]
+    if (c.block_rows, c.reduce_from) == (spec.block_rows, spec.reduce_from):
+        return None
+    return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from)
+
+
 def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> None:
     """Trial re-fit with the effect added: score, drop p-value and refined parameters.
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
@@ -166,7 +211,10 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     best = None
     note = ""
     for cand in [params, *h.alternatives]:  # e.g. other scheduling signals, spring coordinates
-        fm, why = _refit(ctx, spec, h.effect, cand)
+        if h.effect == "input_delay":
+            fm, why = _delay_refit(ctx, spec, cand)
+        else:
+            fm, why = _refit(ctx, spec, h.effect, cand)
         if fm is None:
             note = note or why
             continue
