@@ -4,14 +4,18 @@ the current model (the gate) and the effect's parameters estimated from it.
 =====================  =======================================================================
 missing_mode           narrow-band residual peak above the 99.9 % noise-floor bound, not a line
                        (unless the line's periodic trial failed: diagnose), not at a mode of
-                       the model or a harmonic of a rotating speed
+                       the model or a harmonic of a rotating speed; or free-run error coherent
+                       with the input away from the model's modes (whole record on an
+                       interleaved split)
 periodic_disturbance   harmonics of a candidate rotating speed (or a fixed line) explaining
                        residual variance (F-test)
 parameter_varying      residual power depending on a candidate scheduling signal (F-test)
-input_delay            residual correlated with past inputs (cross-correlation portmanteau)
+input_delay            residual correlated with past inputs (cross-correlation portmanteau), or a
+                       delayed input lowering the estimation free-run error (delay scan)
 nonlinear_stiffness    residual correlated with the cubic Hermite term of an output
                        (higher-order correlation test)
-sensor_bias            non-zero mean or trend of the model's error (t-tests on block means)
+sensor_bias            non-zero mean or trend of the model's error, or of the error of its
+                       input-driven part alone (t-tests on block means)
 feedback               past outputs predicting the input beyond the input's own past and the
                        model's free run (conditional Granger F-test, fitted per estimation
                        segment): a coloured, multisine or swept input in open loop is
