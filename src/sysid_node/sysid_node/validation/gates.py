@@ -976,10 +976,14 @@ def nonlinear_stiffness(ctx: Context) -> Hypothesis:
     n_tests = 3 * len(errors) * y.shape[1] ** 2
     h.p_value = float(min(1.0, pv * n_tests))
     h.parameters = {"channel": j, "integrals": p, "input": 0}
-    h.alternatives = [
+    # the trial also tries the channel's other coordinates: the sensor's kind (displacement,
+    # velocity, acceleration) sets which one the spring acts on, and the correlation cannot
+    # tell them apart (a narrow-band motion and its integrals are alike up to a phase)
+    same = [{"channel": j, "integrals": pp, "input": 0} for pp in range(3) if pp != p]
+    h.alternatives = same + [
         {"channel": jj, "integrals": pp, "input": 0}
         for (jj, pp), q in sorted(per_coord.items(), key=lambda kv: kv[1])
-        if (jj, pp) != (j, p) and q * n_tests < P_GATE
+        if jj != j and q * n_tests < P_GATE
     ][:2]
     what = ("output", "integral of output", "double integral of output")[p]
     kind = "free-run error (prewhitened)" if colored else "one-step residual"
