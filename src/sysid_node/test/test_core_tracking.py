@@ -195,11 +195,43 @@ def test_presence_does_not_demote_a_held_mode():
 
 def test_an_established_mode_that_weakens_keeps_its_status():
     """A weak mode seen in every realization for longer than the timeout is established: when it
-    is then found only now and then (the data over the memory hold less of it), it stays tracked
-    until the timeout, unlike a pole that never was present."""
+    is then found only now and then (in one of three realizations: the data over the memory hold
+    less of it), it stays tracked until the timeout, unlike a pole that never was present."""
     tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
     for k in range(30):
         tr.update([_c(2.0, 0.5)], 0.05 * k)
     for k in range(30, 70):
-        out = tr.update([_c(2.0, 0.5)] if k % 4 == 0 else [], 0.05 * k)
+        out = tr.update([_c(2.0, 0.5)] if k % 3 == 0 else [], 0.05 * k)
     assert [t.status for t in out] == ["tracked"]
+
+
+def test_an_established_weak_pole_that_recurs_rarely_is_not_tracked():
+    """Output-only noise poles beside a strong mode are present for a while, then recur in a
+    small share of the realizations for seconds (random suite draw 34: 10-50 %): an established
+    weak track matched in fewer than PRESENCE_FLOOR of the updates of the last timeout is
+    tentative (it used to stay tracked as long as it recurred within the timeout); a strong one
+    stays tracked, and the weak one is tracked again once present."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(30):
+        tr.update([_c(2.0, 0.5), _c(11.0, 20.0)], 0.05 * k)
+    for k in range(30, 70):
+        out = tr.update([_c(2.0, 0.5), _c(11.0, 20.0)] if k % 6 == 0 else [], 0.05 * k)
+    assert {round(t.frequency_hz, 1): t.status for t in out} == {2.0: "tentative",
+                                                                 11.0: "tracked"}
+    for k in range(70, 85):
+        out = tr.update([_c(2.0, 0.5), _c(11.0, 20.0)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 2
+
+
+def test_a_pole_confirmed_by_a_run_and_then_gone_is_not_tracked_until_the_timeout():
+    """A weak pole found in confirm_hits realizations in a row and then no more is tentative
+    once it has missed more updates than it matched (it used to stay tracked until its window
+    spanned half the timeout); a mode missed as often as it was matched stays tracked."""
+    tr = ModeTracker(confirm_hits=4, lost_timeout_s=2.0)
+    for k in range(4):
+        out = tr.update([_c(3.0, 0.5), _c(7.0, 0.5)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 2
+    for k in range(4, 9):  # 0.25 s: far less than half the timeout
+        out = tr.update([_c(7.0, 0.5)] if k % 2 else [], 0.05 * k)
+    assert {round(t.frequency_hz, 1): t.status for t in out} == {3.0: "tentative",
+                                                                7.0: "tracked"}
