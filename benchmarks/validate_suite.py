@@ -12,8 +12,9 @@ runs its first 6 cases per effect and all 40 clean ones (seeded draws of
 ``sysid_node.scenarios.draw_effects``; see ``sysid_node.validation.suite``). ``--failures``
 prints the per-case breakdown of the effect cases not ranked right. ``--ceiling`` also validates
 every effect case's clean twin (the same draw without the effect) and prints, per effect, the
-median ceiling (how far the baseline's error falls without the effect: the most any hypothesis
-can gain) and the share ranked right among the cases whose ceiling is at least 10 %.
+median ceiling (how far the baseline's error falls without the effect: the error the effect
+adds, what adding it can be expected to remove) and the share ranked right among the cases
+whose ceiling is at least 10 %.
 ``--json`` writes the summary and every case's result.
 """
 
@@ -35,7 +36,7 @@ def main() -> None:
     ap.add_argument("--failures", action="store_true",
                     help="one line per effect case not ranked right (gate, trial drop, note)")
     ap.add_argument("--ceiling", action="store_true",
-                    help="also the clean twin's baseline error: the most each case can gain")
+                    help="also the clean twin's baseline error: the error each effect adds")
     ap.add_argument("--json", metavar="PATH", help="write the summary and every case's result")
     args = ap.parse_args()
     t0 = time.perf_counter()

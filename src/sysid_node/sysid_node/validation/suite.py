@@ -126,10 +126,12 @@ def _draws(effect: str | None, seed: int, kind: str, twin: bool):
 
 
 def ceiling(effect: str, seed: int, kind: str) -> float:
-    """The most any hypothesis can lower the case's validation error: the relative drop of the
+    """The share of the case's validation error its effect adds: the relative drop of the
     baseline's primary NRMSE from the record to its clean twin (:func:`draw_twin`), both with
-    the nominal order. Near zero, the linear model already absorbs the drawn effect (the
-    generator sizes it against the true linear system, not against the best linear fit);
+    the nominal order. What adding the effect can be expected to remove (a re-fit that also
+    cures a misfit the baseline has without the effect can gain more: input_delay 1103007 has
+    -41 % and is ranked right). Near zero, the linear model already absorbs the drawn effect
+    (the generator sizes it against the true linear system, not against the best linear fit).
     NaN for feedback (no twin), when either baseline fails or when the two are scored on
     different errors."""
     from .workflow import Options, baseline_assessment
