@@ -19,7 +19,7 @@ biased low at lightly damped modes with short Welch segments, gives a usable flo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal, stats
@@ -326,13 +326,8 @@ def primary_error(
 
 
 def compare_primary(before: Assessment, e1: np.ndarray | None) -> rs.ErrorComparison:
-    """Drop of the primary error from the ``before`` model's to ``e1`` (same kind): the
-    batch-mean comparison (:func:`.residuals.compare_errors`, over records like this one) and
-    the one conditional on the two predictions (:func:`.residuals.compare_predictions`, this
-    record's noise: sees a drop confined to where the input drives the effect), Bonferroni."""
+    """Drop of the primary error from the ``before`` model's to ``e1`` (same kind), scaled by
+    the measurement's spread per channel (:func:`.residuals.compare_drop`)."""
     if e1 is None:
         return rs.ErrorComparison(0.0, 1.0, 0)
-    e0 = before.primary_error
-    batch = rs.compare_errors(e0, e1, before.y_std, rank_batches=RANK_BATCHES)
-    cond = rs.compare_predictions(e0, e1, before.y_std)
-    return replace(batch, p_value=float(min(1.0, 2.0 * min(batch.p_value, cond.p_value))))
+    return rs.compare_drop(before.primary_error, e1, before.y_std, RANK_BATCHES)

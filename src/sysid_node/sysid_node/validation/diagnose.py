@@ -25,7 +25,7 @@ from .augment import ModelSpec
 from .baseline import rank_realizations
 from .data import ValidationData, ValidationError
 from .gates import Context, Hypothesis
-from .models import FittedModel, _plain, estimation_cost, fit, shift
+from .models import FittedModel, estimation_cost, fit, is_plain, shift
 from .split import Split
 
 P_DROP = 1e-2
@@ -176,7 +176,7 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
     that the baseline's selection picks for the input delayed by ``d`` samples at the
     structure's order; None when they are the spec's own or there is no linear free run."""
     data = ctx.data
-    if not data.n_inputs or ctx.assessment.primary != "free_run" or not _plain(ctx.current):
+    if not data.n_inputs or ctx.assessment.primary != "free_run" or not is_plain(ctx.current):
         return None
     shifted = replace(data, u=shift(data.u, d))
     try:

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import signal, stats
 
 from . import residuals as rs
-from .assess import Assessment, compare_primary, primary_error
+from .assess import RANK_BATCHES, Assessment, compare_primary, primary_error
 from .augment import rotor_phase
 from .data import ValidationData, ValidationError
 from .models import (
@@ -716,9 +716,7 @@ def scan_comparison(e0: np.ndarray, e1: np.ndarray) -> rs.ErrorComparison:
     drop is tested (:func:`.assess.compare_primary`): a delay that a swept input or a
     Schroeder multisine (a sweep within its period) shows through a mode's transient lowers
     the error in a few batches only, which the batch means alone never find significant."""
-    batch = rs.compare_errors(e0, e1, rank_batches=40)
-    cond = rs.compare_predictions(e0, e1)
-    return replace(batch, p_value=float(min(1.0, 2.0 * min(batch.p_value, cond.p_value))))
+    return rs.compare_drop(e0, e1, rank_batches=RANK_BATCHES)
 
 
 def input_delay(ctx: Context) -> Hypothesis:

@@ -373,7 +373,7 @@ def _predictor(model: IdentifiedModel, y: np.ndarray, u: np.ndarray) -> np.ndarr
 
 
 # -------------------------------------------------------------------- fitting
-def _plain(fm: FittedModel | None) -> bool:
+def is_plain(fm: FittedModel | None) -> bool:
     """A single linear DSRA model (no LPV, closed-loop or cubic structure)."""
     sp = fm.spec if fm is not None else None
     return (
@@ -409,7 +409,7 @@ def fit(
         if not 0 <= spec.cubic_input < data.n_inputs:
             raise ValidationError("nonlinear_stiffness needs an input (the spring acts with it)")
         linear = replace(spec, cubic_channel=None)
-        same = _plain(like) and like.spec.delay == spec.delay and like.order == order
+        same = is_plain(like) and like.spec.delay == spec.delay and like.order == order
         fm.cubic_prior = like if same else fit(linear, data, split)
     if phi is not None:  # first pass: plain least squares on the raw outputs
         fm.theta = lstsq(phi[split.est], data.y[split.est])
@@ -440,7 +440,7 @@ def _hinted(fm: FittedModel, like: FittedModel | None, data: ValidationData):
     realization of order n + 2 can spend the two states elsewhere (noise, a real pole pair)
     and never try the mode the residual shows. None when there is nothing to start from."""
     sp = fm.spec
-    if not sp.mode_hints or not _plain(like) or like.spec.delay != sp.delay:
+    if not sp.mode_hints or not is_plain(like) or like.spec.delay != sp.delay:
         return None
     m = like.model
     if m.order + 2 * len(sp.mode_hints) != fm.order or spectral_radius(m.A) >= 1.0:
@@ -535,7 +535,7 @@ def _fit_affine(
     estimation samples' free run (:func:`.lpv_affine.fit_affine`)."""
     if spec.lpv_signal not in data.signals and spec.lpv_signal != TIME_SIGNAL:
         raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
-    same = _plain(like) and _bare(like.spec) == _bare(spec)
+    same = is_plain(like) and _bare(like.spec) == _bare(spec)
     base = like if same else fit(replace(spec, lpv_signal=None), data, split)
     m = base.model
     if m is None or spectral_radius(m.A) >= 1.0:

@@ -14,7 +14,7 @@ Standard model-validation tests (Ljung, *System Identification*, ch. 16) with th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import linalg, signal, stats
@@ -526,3 +526,15 @@ def compare_predictions(
     n_eff = sdd**2 / max(float(np.sum(w**2)), 1e-300)
     dof = max(n_eff / tau - 1.0, 1.0)
     return ErrorComparison(drop, float(stats.t.sf(t, dof)), int(dof))
+
+
+def compare_drop(
+    e0: np.ndarray, e1: np.ndarray, scale: np.ndarray | None = None, rank_batches: int = 40
+) -> ErrorComparison:
+    """Drop from error ``e0`` to ``e1`` as every trial and scan is judged: the batch-mean test
+    over records like this one (:func:`compare_errors`) and the one conditional on the two
+    predictions (:func:`compare_predictions`, sees a drop confined to where the input drives
+    the effect), combined by Bonferroni (two tests)."""
+    batch = compare_errors(e0, e1, scale, rank_batches=rank_batches)
+    cond = compare_predictions(e0, e1, scale)
+    return replace(batch, p_value=float(min(1.0, 2.0 * min(batch.p_value, cond.p_value))))
