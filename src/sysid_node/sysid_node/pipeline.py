@@ -116,6 +116,8 @@ class Pipeline:
         #: automatic band (freq_max 0): its upper edge [Hz] (NaN until chosen) and the recent
         #: raw data for the checks and rebuilds
         self.band_edge = math.nan
+        #: looks for a split done while the automatic band is being chosen (_early_split)
+        self._early_looks = 0
         #: the automatic band's lowest peak [Hz] (NaN until chosen): the block rows span it
         self.band_low = math.nan
         #: a configured band with the automatic order: the modes its order has room for (0:
@@ -187,13 +189,15 @@ class Pipeline:
             f"{fmin:g}-{fmax:g} Hz" + (f"; {self.low_band.describe()}" if self.low_band else "")
         )
 
-    def _new_low_band(self) -> LowBand | None:
-        """The estimator of the group below the automatic band's split (None: no split)."""
-        if not (self.auto_band and math.isfinite(self.split_hz)
-                and math.isfinite(self.band_edge)):
+    def _new_low_band(self, low_hz: float = math.nan) -> LowBand | None:
+        """The estimator of the group below the automatic band's split (None: no split);
+        ``low_hz``: the lowest peak while the band is being chosen (``_early_split``)."""
+        if math.isfinite(self.band_edge):
+            low_hz = self.band_low
+        if not (self.auto_band and math.isfinite(self.split_hz) and math.isfinite(low_hz)):
             return None
         return LowBand(self._core[0], self.values, *self._layout, self.identification_rate,
-                       self.split_hz, self.band_low, self._split_peaks)
+                       self.split_hz, low_hz, self._split_peaks)
 
     def _tracker_kwargs(self, cls: type) -> dict[str, Any]:
         """Tracking gates of the ModeTracker from the parameters."""
@@ -388,6 +392,7 @@ class Pipeline:
                 self._next_check_ns = int(c.stamps_ns[0]) + round(BAND_CHECK_PERIOD_S * 1e9)
             else:
                 self.band_edge = math.nan
+                self._early_looks = 0
                 self.band_low = math.nan
                 self._band_modes = 0  # a configured band's modes are counted again
                 self._rows_low = math.nan
@@ -409,6 +414,8 @@ class Pipeline:
             if self._probing:
                 if self._raw_count() >= self._probe_samples():
                     self._choose_band()
+                elif self._raw_count() >= self._early_samples():
+                    self._early_split()
             elif self._next_check_ns is not None and last >= self._next_check_ns:
                 self._recheck_band(last) if self.auto_band else self._recount_modes(last)
         return records
@@ -461,11 +468,20 @@ class Pipeline:
     def _probe_samples(self) -> int:
         return int(max(BAND_PROBE_S * self.sample_rate, BAND_PROBE_MIN_SAMPLES))
 
+    def _early_samples(self) -> int:
+        """Raw samples at which the split is looked for next (``_early_split``), or the probe's
+        once the looks are done or found one."""
+        if self._early_looks >= len(EARLY_SPLIT_S) or self.low_band is not None:
+            return self._probe_samples()
+        return int(max(EARLY_SPLIT_S[self._early_looks] * self.sample_rate,
+                       BAND_PROBE_MIN_SAMPLES))
+
     def _samples_to_check(self, c: Chunk) -> int:
         """Samples of ``c`` up to the one at which the next band check is due (all of them
         when none is due within ``c``)."""
         if self._probing:
-            return int(min(max(self._probe_samples() - self._raw_count(), 1), len(c)))
+            due = min(self._probe_samples(), self._early_samples())
+            return int(min(max(due - self._raw_count(), 1), len(c)))
         if self._next_check_ns is None:
             return len(c)
         return int(min(np.searchsorted(c.stamps_ns, self._next_check_ns, side="left") + 1,
@@ -537,11 +553,37 @@ class Pipeline:
             self.estimator.set_forgetting_factor(self.forgetting_factor)  # memory_periods
         self._start_low_band()
 
-    def _start_low_band(self) -> None:
+    def _early_split(self) -> None:
+        """While the band is being chosen, at each of EARLY_SPLIT_S until one finds it: when the
+        full-rate window cannot span the lowest peak of these data and their peaks leave a gap
+        (``core.band.split_frequency``), the low group's estimator starts now (fed the raw data
+        so far) rather than at the band choice, which decides again on all BAND_PROBE_S (its
+        finer bins choose the band, the window and the memory; this look only adds the low
+        estimator). With a window capped short of a low mode's period the main estimator does
+        not resolve it (a 3.8 Hz mode at 742 Hz with 70 block rows, two modes 6 % apart near 5
+        Hz at 613 Hz with 35); the low group found it 0.2-0.5 s after it started. The first
+        look's bins are twice the probe's: low modes in its first bins may not show a rise
+        (modes near 2-5 Hz at 800 Hz), hence the second."""
+        from sysid_node.core.band import split_frequency
+
+        self._early_looks += 1
+        choice = self._band_from_raw()
+        fs, low = self.identification_rate, choice.low_hz
+        if not (math.isfinite(low) and low > 0
+                and P.window_capped(self.values, *self._layout, fs, low)):
+            return
+        split = split_frequency(choice, max_split_hz(self.values, *self._layout, fs, low))
+        if not math.isfinite(split):
+            return
+        self._set_split(split, choice)
+        self._start_low_band(low)
+
+    def _start_low_band(self, low_hz: float = math.nan) -> None:
         """The estimator of the group below the split, fed the recent raw data without
         realizations (the main estimator goes on untouched) up to the samples still held for
-        it (``_pending``), which both will get at the next flush."""
-        self.low_band = self._new_low_band()
+        it (``_pending``), which both will get at the next flush. ``low_hz``: the lowest peak
+        while the band is being chosen (``_early_split``)."""
+        self.low_band = self._new_low_band(low_hz)
         if self.low_band is None:
             return
         self.log(f"automatic {self.low_band.describe()}")
@@ -1013,6 +1055,10 @@ class Pipeline:
 #: structure when chosen, so a mode may rise by ~27 % before a rebuild).
 BAND_PROBE_S = 4.0
 BAND_PROBE_MIN_SAMPLES = 512
+#: While the band is being chosen, the split (a low group's estimator) is looked for after
+#: these amounts of data [s] (and BAND_PROBE_MIN_SAMPLES) until found: half and three
+#: quarters of the probe (MIN_SEGMENTS Welch segments of half and three quarters its length).
+EARLY_SPLIT_S = (0.5 * BAND_PROBE_S, 0.75 * BAND_PROBE_S)
 BAND_CHECK_PERIOD_S = 2.0
 #: A configured band's window grows when its lowest lightly damped confirmed mode asks this
 #: many times the rows it has (one rebuild, not one per step of a drifting mode).

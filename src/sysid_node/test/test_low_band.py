@@ -103,6 +103,21 @@ def test_chunking_does_not_change_the_numbers_with_a_split(wide_record):
                                       [m.frequency_hz for m in rb.modes])
 
 
+def test_the_low_group_starts_before_the_band_is_chosen(wide_record):
+    """While the band's probe runs (EARLY_SPLIT_S) the split is looked for: the low group's
+    estimator runs, and its modes are tracked, before the band choice at BAND_PROBE_S (the
+    main estimator's 70 block rows at 800 Hz span a quarter of a 2.5 Hz period)."""
+    from sysid_node.pipeline import BAND_PROBE_S, EARLY_SPLIT_S
+
+    y = wide_record[: int(0.5 * (EARLY_SPLIT_S[-1] + BAND_PROBE_S) * FS)]  # 3.5 s
+    pl, recs = run_output_only(y, FS, None, 40)
+    assert math.isnan(pl.band_edge)  # not chosen yet
+    assert pl.low_band is not None and 3.3 < pl.split_hz < 110.0
+    assert pl.low_band.rate < FS / 2
+    last = [m.frequency_hz for m in recs[-1].modes if m.status == "tracked"]
+    assert any(abs(f / 2.2 - 1) <= 0.02 for f in last), last
+
+
 def test_the_split_goes_down_the_gap_to_where_the_low_window_fits():
     c = _choice(2.5, (3.0, 4.2, 12.0, 80.0, 120.0, 190.0), 300.0)
     assert split_frequency(c, max_hz=20.0) == pytest.approx(20.0)
