@@ -254,9 +254,9 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
     """Feedback changes what the input is, not how the plant maps it to the output: an
     open-loop model predicts the output as well as the loop model on data from the same loop
     (its bias is the best causal fit of that data). What the loop explains is the measured
-    input: the score is the drop of the input's held-out one-step error when past outputs join
-    its own past (:func:`.gates.input_prediction`). The trial model is the joint input-output
-    model (its plant is free of the loop's bias)."""
+    input: the score is the drop of the input's one-step validation error when the loop fitted
+    on the estimation part joins its own past (:func:`.gates.input_prediction`). The trial
+    model is the joint input-output model (its plant is free of the loop's bias)."""
     ip = ctx.fitted.get(("feedback", "input"))
     if ip is None:
         return

@@ -58,6 +58,8 @@ from .split import Split
 P_GATE = 1e-2
 FEEDBACK_ERROR_LAGS = 5  # innovation lags of the closed-loop test before any model
 FEEDBACK_OUTPUT_LAGS = 5  # output lags of the feedback gate (a controller's delay)
+LOOP_ITERATIONS = 30  # Gauss-Newton steps of the loop's controller (feedback test) ...
+LOOP_TOLERANCE = 1e-6  # ... until a step lowers the residual sum of squares less than this
 INPUT_LAGS = (4, 8, 16, 32)  # candidate numbers of the input's own lags (feedback test)
 #: Closed loop for the choice of the scored prediction: past innovations explain at least 10 %
 #: of the input's variance left by its own past (a model error that is a function of the input
@@ -838,8 +840,10 @@ class InputPrediction:
     p_value: float  # F-test on the estimation samples (Bonferroni over the inputs)
     share: float  # of the input's unpredictable part that past outputs explain
     open_error: np.ndarray  # validation error of the input from its own past
-    loop_error: np.ndarray  # ... and from past outputs too
+    loop_error: np.ndarray  # ... and from past outputs too (the estimation part's loop)
     u_lags: int
+    #: validation error of the input from its own past with the estimation part's predictor
+    ahead_error: np.ndarray | None = None
 
 
 def input_prediction(
@@ -850,20 +854,24 @@ def input_prediction(
     model's free run is a regressor of both, so only the outputs' part that the input does not
     drive can help (in open loop that part is noise, independent of the input).
 
-    Both are least squares on each estimation segment and scored on the validation segment
-    that follows it: a swept input (and a Schroeder multisine, a sweep within its period) is
-    predictable from its own past only locally. Regressors are lags of the whole record, so
-    an interleaved split's blocks keep their true time lags. ``u_lags`` None: the number of
-    the input's own lags (:data:`INPUT_LAGS`) that predicts it best on the last 30 % of each
-    estimation segment from the first 70 % (the best open-loop predictor, so that the loop's
-    gain is not measured against an over-fitted one).
+    A swept input (and a Schroeder multisine, a sweep within its period) is predictable from
+    its own past only locally, while the controller is one system: the own-past predictor's
+    coefficients are local to each estimation segment, the loop's are one set fitted on all of
+    them (:func:`_shared_loop`; the F-test on the estimation samples). Held out, the loop's
+    coefficients are applied to the validation segments, where the own-past predictor (of u,
+    or of the loop's reference) is fitted again for both predictions: the loop is what is
+    tested, not how far a local predictor of the reference extrapolates. Regressors are lags
+    of the whole record, so an interleaved split's blocks keep their true time lags.
+    ``u_lags`` None: the number of the input's own lags (:data:`INPUT_LAGS`) that predicts it
+    best on the last 30 % of each estimation segment from the first 70 % (the best open-loop
+    predictor, so that the loop's gain is not measured against an over-fitted one).
     """
     if u_lags is None:
         inner = ctx.split.inner(0.3)
         errs = []
         for lags in INPUT_LAGS:
             ip = input_prediction(replace(ctx, split=inner), lags, y_lags)
-            errs.append(np.inf if ip is None else float(np.mean(ip.open_error**2)))
+            errs.append(np.inf if ip is None else float(np.mean(ip.ahead_error**2)))
         if not np.isfinite(min(errs)):
             return None
         u_lags = INPUT_LAGS[int(np.argmin(errs))]
@@ -872,7 +880,9 @@ def input_prediction(
     blocks = [np.ones((data.n, 1)), lagged(u, u_lags)]
     if a.simulation is not None and np.all(np.isfinite(a.simulation)):
         blocks.append(lagged(a.simulation, y_lags))
-    x_r = _unit_columns(np.hstack(blocks))  # the input's own past: local coefficients
+    raw = np.hstack(blocks)
+    scale = np.maximum(np.linalg.norm(raw, axis=0), 1e-300)
+    x_r = raw / scale  # the input's own past: local coefficients
     x_l = _unit_columns(lagged(data.y, y_lags))  # what a controller feeds back
     k0 = max(u_lags, y_lags)
     est_runs = split.est_segments
@@ -886,35 +896,98 @@ def input_prediction(
             pairs.append((est, val))
     if not pairs:
         return None
-    q = x_l.shape[1] * len(pairs)
-    dof = sum(est.size - x_r.shape[1] - x_l.shape[1] for est, _ in pairs)
+    q = x_l.shape[1]
+    dof = sum(est.size - x_r.shape[1] for est, _ in pairs) - q
     if dof < 1:
         return None
-    x_f = np.hstack([x_r, x_l])
     best = None
-    for j in range(u.shape[1]):
-        ss_r = ss_f = tot = 0.0
-        open_e, loop_e = [], []
-        for est, val in pairs:
-            th_r = rs.lstsq(x_r[est], u[est, j])
-            th_f = rs.lstsq(x_f[est], u[est, j])
-            ss_r += float(np.sum((u[est, j] - x_r[est] @ th_r) ** 2))
-            ss_f += float(np.sum((u[est, j] - x_f[est] @ th_f) ** 2))
-            tot += float(np.sum(u[est, j] ** 2))
-            open_e.append(u[val, j] - x_r[val] @ th_r)
-            loop_e.append(u[val, j] - x_f[val] @ th_f)
+    m = u.shape[1]
+    for j in range(m):
+        own = 1 + m * np.arange(u_lags) + j  # input j's own lags in x_r
+        ss_r, ss_f, open_e, loop_e, ahead = _shared_loop(
+            u[:, j], x_r, x_l, pairs, own, scale[own]
+        )
+        tot = float(sum(np.sum(u[est, j] ** 2) for est, _ in pairs))
         if ss_r <= 1e-12 * tot:  # the input's own past predicts it: no room for a loop
             f, p, share = 0.0, 1.0, 0.0
         else:
-            f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
-            p, share = float(stats.f.sf(f, q, dof)), (ss_r - ss_f) / ss_r
+            f = max(0.0, (ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
+            p, share = float(stats.f.sf(f, q, dof)), max(0.0, ss_r - ss_f) / ss_r
         cand = InputPrediction(
-            j, float(f), float(min(1.0, p * u.shape[1])), float(share),
-            np.concatenate(open_e), np.concatenate(loop_e), u_lags,
+            j, f, float(min(1.0, p * u.shape[1])), share, open_e, loop_e, u_lags, ahead
         )
         if best is None or cand.p_value < best.p_value:
             best = cand
     return best
+
+
+@dataclass
+class _Reference:
+    """The loop's reference r = u + x_l b and its local predictors (:func:`_shared_loop`)."""
+
+    r: np.ndarray
+    x_own: np.ndarray  # x_r with the input's own lags replaced by r's
+    th: list  # coefficients per estimation segment
+    ss: float  # residual sum of squares on the estimation samples
+
+
+def _reference(
+    u: np.ndarray, x_r: np.ndarray, x_l: np.ndarray, pairs: list, own: np.ndarray,
+    own_scale: np.ndarray, b: np.ndarray,
+) -> _Reference:
+    r = u + x_l @ b
+    x_own = x_r.copy()
+    x_own[:, own] = lagged(r[:, None], own.size) / own_scale
+    th = [rs.lstsq(x_own[est], r[est]) for est, _ in pairs]
+    ss = sum(float(np.sum((r[est] - x_own[est] @ t) ** 2))
+             for (est, _), t in zip(pairs, th, strict=True))
+    return _Reference(r, x_own, th, ss)
+
+
+def _shared_loop(
+    u: np.ndarray, x_r: np.ndarray, x_l: np.ndarray, pairs: list, own: np.ndarray,
+    own_scale: np.ndarray,
+) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+    """The loop u = r - F(y) with one controller F for the record and a reference r that is
+    predictable from its own past only locally: r = u + x_l b, r_t predicted by ``x_r`` with
+    the input's own lags (columns ``own``, scaled by ``own_scale``) replaced by r's, with
+    coefficients a_s local to each estimation segment. Given b the a_s are least squares; b
+    by Gauss-Newton on the residual left by them (variable projection: the residual's
+    derivative in b, x_l,t - sum_k c_k x_l,t-k with c = a_s[own] / own_scale, projected off
+    the segment's regressors), from b = 0 (the open-loop fits). Returns (residual sums of
+    squares of the open and of the loop fits on the estimation samples, the open and loop
+    validation errors (b held out, the reference's predictor re-fitted), the open validation
+    error of the estimation fits)."""
+    lx = lagged(x_l, own.size).reshape(x_l.shape[0], own.size, x_l.shape[1])
+    b = np.zeros(x_l.shape[1])
+    ref = open_ref = _reference(u, x_r, x_l, pairs, own, own_scale, b)
+    for _ in range(LOOP_ITERATIONS):
+        jac, res = [], []
+        for (est, _), t in zip(pairs, ref.th, strict=True):
+            w = x_l[est] - np.einsum("nkq,k->nq", lx[est], t[own] / own_scale)
+            jac.append(w - ref.x_own[est] @ rs.lstsq(ref.x_own[est], w))
+            res.append(ref.r[est] - ref.x_own[est] @ t)
+        step = -rs.lstsq(np.vstack(jac), np.concatenate(res))
+        for _ in range(8):  # halve a step that does not lower the sum of squares
+            cand = _reference(u, x_r, x_l, pairs, own, own_scale, b + step)
+            if cand.ss < ref.ss:
+                break
+            step = 0.5 * step
+        else:
+            break
+        b, prev, ref = b + step, ref.ss, cand
+        if prev - ref.ss <= LOOP_TOLERANCE * ref.ss:
+            break
+    # held out: the controller b from the estimation samples; the reference's local
+    # predictor (a nuisance, e.g. a sweep's local frequency) fitted again on each
+    # validation segment, for the open and the loop predictions alike
+    open_e, loop_e, ahead = [], [], []
+    for (_, val), t in zip(pairs, open_ref.th, strict=True):
+        open_e.append(u[val] - x_r[val] @ rs.lstsq(x_r[val], u[val]))
+        loop_e.append(ref.r[val] - ref.x_own[val] @ rs.lstsq(ref.x_own[val], ref.r[val]))
+        ahead.append(u[val] - x_r[val] @ t)
+    return (open_ref.ss, ref.ss, np.concatenate(open_e), np.concatenate(loop_e),
+            np.concatenate(ahead))
 
 
 def _unit_columns(x: np.ndarray) -> np.ndarray:
