@@ -857,11 +857,15 @@ def input_prediction(
     A swept input (and a Schroeder multisine, a sweep within its period) is predictable from
     its own past only locally, while the controller is one system: the own-past predictor's
     coefficients are local to each estimation segment, the loop's are one set fitted on all of
-    them (:func:`_shared_loop`; the F-test on the estimation samples). Held out, the loop's
-    coefficients are applied to the validation segments, where the own-past predictor (of u,
-    or of the loop's reference) is fitted again for both predictions: the loop is what is
-    tested, not how far a local predictor of the reference extrapolates. Regressors are lags
-    of the whole record, so an interleaved split's blocks keep their true time lags.
+    them (:func:`_shared_loop`). The F-test on the estimation samples takes the loop's direct
+    term (u + x_l b predicted by u's own past): the outputs' longer past reached through the
+    reference's predictor would also denoise a predictable input measured with noise in open
+    loop (errors in variables). The score takes the loop with the reference's structure. Held
+    out, the loop's coefficients are applied to the validation segments, where the own-past
+    predictor (of u, or of the loop's reference) is fitted again for both predictions: the
+    loop is what is tested, not how far a local predictor of the reference extrapolates.
+    Regressors are lags of the whole record, so an interleaved split's blocks keep their true
+    time lags.
     ``u_lags`` None: the number of the input's own lags (:data:`INPUT_LAGS`) that predicts it
     best on the last 30 % of each estimation segment from the first 70 % (the best open-loop
     predictor, so that the loop's gain is not measured against an over-fitted one).
@@ -904,9 +908,11 @@ def input_prediction(
     m = u.shape[1]
     for j in range(m):
         own = 1 + m * np.arange(u_lags) + j  # input j's own lags in x_r
-        ss_r, ss_f, open_e, loop_e, ahead = _shared_loop(
-            u[:, j], x_r, x_l, pairs, own, scale[own]
-        )
+        # the gate: the loop's direct term (y's last lags, a reach too short for past outputs
+        # to denoise a predictable input measured with noise, an open-loop effect); the
+        # score: the loop with the reference's structure, held out
+        ss_r, ss_f, _, _, ahead = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own], False)
+        _, _, open_e, loop_e, _ = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own])
         tot = float(sum(np.sum(u[est, j] ** 2) for est, _ in pairs))
         if ss_r <= 1e-12 * tot:  # the input's own past predicts it: no room for a loop
             f, p, share = 0.0, 1.0, 0.0
@@ -933,11 +939,12 @@ class _Reference:
 
 def _reference(
     u: np.ndarray, x_r: np.ndarray, x_l: np.ndarray, pairs: list, own: np.ndarray,
-    own_scale: np.ndarray, b: np.ndarray,
+    own_scale: np.ndarray, b: np.ndarray, filtered: bool,
 ) -> _Reference:
     r = u + x_l @ b
     x_own = x_r.copy()
-    x_own[:, own] = lagged(r[:, None], own.size) / own_scale
+    if filtered:
+        x_own[:, own] = lagged(r[:, None], own.size) / own_scale
     th = [rs.lstsq(x_own[est], r[est]) for est, _ in pairs]
     ss = sum(float(np.sum((r[est] - x_own[est] @ t) ** 2))
              for (est, _), t in zip(pairs, th, strict=True))
@@ -946,7 +953,7 @@ def _reference(
 
 def _shared_loop(
     u: np.ndarray, x_r: np.ndarray, x_l: np.ndarray, pairs: list, own: np.ndarray,
-    own_scale: np.ndarray,
+    own_scale: np.ndarray, filtered: bool = True,
 ) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
     """The loop u = r - F(y) with one controller F for the record and a reference r that is
     predictable from its own past only locally: r = u + x_l b, r_t predicted by ``x_r`` with
@@ -957,19 +964,22 @@ def _shared_loop(
     the segment's regressors), from b = 0 (the open-loop fits). Returns (residual sums of
     squares of the open and of the loop fits on the estimation samples, the open and loop
     validation errors (b held out, the reference's predictor re-fitted), the open validation
-    error of the estimation fits)."""
+    error of the estimation fits). ``filtered`` False: the loop's direct term only, u + x_l b
+    predicted by u's own past (x_r unchanged; one linear least-squares problem)."""
     lx = lagged(x_l, own.size).reshape(x_l.shape[0], own.size, x_l.shape[1])
     b = np.zeros(x_l.shape[1])
-    ref = open_ref = _reference(u, x_r, x_l, pairs, own, own_scale, b)
+    ref = open_ref = _reference(u, x_r, x_l, pairs, own, own_scale, b, filtered)
     for _ in range(LOOP_ITERATIONS):
         jac, res = [], []
         for (est, _), t in zip(pairs, ref.th, strict=True):
-            w = x_l[est] - np.einsum("nkq,k->nq", lx[est], t[own] / own_scale)
+            w = x_l[est]
+            if filtered:
+                w = w - np.einsum("nkq,k->nq", lx[est], t[own] / own_scale)
             jac.append(w - ref.x_own[est] @ rs.lstsq(ref.x_own[est], w))
             res.append(ref.r[est] - ref.x_own[est] @ t)
         step = -rs.lstsq(np.vstack(jac), np.concatenate(res))
         for _ in range(8):  # halve a step that does not lower the sum of squares
-            cand = _reference(u, x_r, x_l, pairs, own, own_scale, b + step)
+            cand = _reference(u, x_r, x_l, pairs, own, own_scale, b + step, filtered)
             if cand.ss < ref.ss:
                 break
             step = 0.5 * step
