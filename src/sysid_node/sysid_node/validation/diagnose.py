@@ -196,7 +196,10 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
 def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> None:
     """Trial re-fit with the effect added: score, drop p-value and refined parameters.
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
-    failing model); the drop's p-value must then be under P_DROP / n_tried."""
+    failing model); the drop's p-value must then be under P_DROP / n_tried. With
+    alternatives (other scheduling signals, spring coordinates) the one that lowers the
+    validation error most is kept and its drop's p-value is multiplied by the number of
+    candidates fitted (Bonferroni: the best of k is chosen on the data that test it)."""
     params = dict(h.parameters)
     if h.effect == "feedback":
         _confirm_feedback(h, ctx, spec, n_tried)
@@ -210,6 +213,7 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         params = {"samples": d}
     best = None
     note = ""
+    fitted = 0
     for cand in [params, *h.alternatives]:  # e.g. other scheduling signals, spring coordinates
         if h.effect == "input_delay":
             fm, why = _delay_refit(ctx, spec, cand)
@@ -218,6 +222,7 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         if fm is None:
             note = note or why
             continue
+        fitted += 1
         e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
         cmp = compare_primary(ctx.assessment, e1)
         if best is None or cmp.drop > best[1].drop:
@@ -233,12 +238,14 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         alt += " lowers the error most"
         h.parameters = dict(chosen)
     params = chosen
-    h.trial, h.score, h.drop_p = fm, max(0.0, cmp.drop), cmp.p_value
+    p_drop = min(1.0, cmp.p_value * fitted)
+    h.trial, h.score, h.drop_p = fm, max(0.0, cmp.drop), p_drop
     consistent, why = _parameters(h, ctx, fm, params, e1)
     what = "free-run" if ctx.assessment.primary == "free_run" else "one-step"
+    of = f", the best of {fitted} trials" if fitted > 1 else ""
     h.trial_note = (
         f"trial re-fit lowers the {what} validation error by {100 * cmp.drop:.0f} % "
-        f"(p={cmp.p_value:.1e})" + alt + (f"; {why}" if why else "")
+        f"(p={p_drop:.1e}{of})" + alt + (f"; {why}" if why else "")
     )
     h.evidence += "; " + h.trial_note
     gate = h.p_value < G.P_GATE or n_tried > 1
@@ -246,7 +253,7 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         h.trial_note += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
         h.evidence += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
     h.significant = bool(
-        gate and cmp.p_value < P_DROP / n_tried and cmp.drop >= MIN_DROP and consistent
+        gate and p_drop < P_DROP / n_tried and cmp.drop >= MIN_DROP and consistent
     )
 
 
