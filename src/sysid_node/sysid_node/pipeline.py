@@ -23,6 +23,7 @@ import numpy as np
 from scipy import signal
 
 from sysid_node import params as P
+from sysid_node.core.band import PEAK_MIN_BINS, split_frequency, structure_band
 from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
@@ -512,8 +513,6 @@ class Pipeline:
         return y, u
 
     def _band_from_raw(self, prominence: float = 1.0, ratio_factor: float = 1.0):
-        from sysid_node.core.band import structure_band
-
         t0 = time.perf_counter()
         y, u = self._raw_arrays()
         choice = structure_band(y, u, self.sample_rate, prominence, ratio_factor)
@@ -527,7 +526,6 @@ class Pipeline:
         choice = self._band_from_raw()
         self.band_edge = choice.fmax_hz
         self.band_low = choice.low_hz
-        from sysid_node.core.band import split_frequency
 
         fs_id = self.sample_rate / P.decimation_factor(self.values, self.sample_rate,
                                                        choice.fmax_hz)
@@ -564,8 +562,6 @@ class Pipeline:
         Hz at 613 Hz with 35); the low group found it 0.2-0.5 s after it started. The first
         look's bins are twice the probe's: low modes in its first bins may not show a rise
         (modes near 2-5 Hz at 800 Hz), hence the second."""
-        from sysid_node.core.band import split_frequency
-
         self._early_looks += 1
         choice = self._band_from_raw()
         fs, low = self.identification_rate, choice.low_hz
@@ -608,8 +604,6 @@ class Pipeline:
         if not P.window_capped(self.values, *self._layout, self.identification_rate,
                                self.band_low):
             return
-        from sysid_node.core.band import split_frequency
-
         top = max_split_hz(self.values, *self._layout, self.identification_rate, self.band_low)
         choice = self._band_from_raw()
         new, cur = split_frequency(choice, top), self.split_hz
@@ -655,8 +649,6 @@ class Pipeline:
         the first choice's coarse bins are missed, and a window of a fraction of their period
         loses them (a 2 Hz mode at 218 Hz with 23 block rows). Never up: a quiet spell does
         not shorten the window."""
-        from sysid_node.core.band import PEAK_MIN_BINS
-
         low, cur = choice.low_hz, self.band_low
         # a clear peak (not one of the first bins, clear by default) between the new lowest
         # rise and the current one: a mode below the window's, not a low-frequency drift
