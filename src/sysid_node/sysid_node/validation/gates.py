@@ -1037,32 +1037,33 @@ def feedback(ctx: Context) -> Hypothesis:
 SCORE_AR_ORDER = 30  # whitening filter of the free-run error (lightly damped noise modes)
 
 
-def _null_directions(fm: FittedModel, data: ValidationData, u: np.ndarray, sim: np.ndarray,
-                     c: int) -> np.ndarray:
-    """Output ``c``'s sensitivity of a linear free run to its own parameters, (N, k): D (the
-    inputs), B (the response of every state to every input), x0 (C A^t) and, for the poles,
-    the response of every state to the free run itself (a pole moved by dA changes the run
-    by about the model driven by dA x). A test of a missing term must not take the linear
-    model's own small misfit, a function of the input too, for it."""
-    dyn = fm.dynamics(data.n)
-    cols = [u] + [dyn.input_regressors(u[:, i])[:, c, :] for i in range(u.shape[1])]
-    cols.append(dyn.input_regressors(sim[:, c])[:, c, :])
-    cols.append(dyn.initial_regressors(data.n)[:, c, :])
-    return np.hstack(cols)
+def _null_directions(dyn: LinearDynamics, u: np.ndarray, sim: np.ndarray) -> list[np.ndarray]:
+    """Per output c, (N, k): the sensitivity of a linear free run's output c to its own
+    parameters: D (the inputs), B (the response of every state to every input), x0 (C A^t) and,
+    for the poles, the response of every state to the free run itself (a pole moved by dA
+    changes the run by about the model driven by dA x). A test of a missing term must not take
+    the linear model's own small misfit, a function of the input too, for it."""
+    by_input = [dyn.input_regressors(u[:, i]) for i in range(u.shape[1])]
+    initial = dyn.initial_regressors(u.shape[0])
+    return [
+        np.hstack([u, *(r[:, c, :] for r in by_input),
+                   dyn.input_regressors(sim[:, c])[:, c, :], initial[:, c, :]])
+        for c in range(sim.shape[1])
+    ]
 
 
-def _partial_t(e: np.ndarray, x: np.ndarray, null: np.ndarray) -> float:
-    """t statistic of x in the regression of e on [x, null] (e, x white-noise scaled)."""
+def _partial_t(e: np.ndarray, x: np.ndarray, null: np.ndarray) -> np.ndarray:
+    """t statistics of each column of x (or of x) in the regression of e on [x_j, null]
+    (e, x white-noise scaled)."""
     q, _ = np.linalg.qr(null)
     e = e - q @ (q.T @ e)
     x = x - q @ (q.T @ x)
-    xx = float(x @ x)
-    if xx <= 0:
-        return 0.0
-    b = float(x @ e) / xx
-    res = e - b * x
-    s2 = float(res @ res) / max(e.size - 1 - null.shape[1], 1)
-    return b / np.sqrt(max(s2, 1e-300) / xx)
+    xx = np.einsum("i...,i...->...", x, x)
+    safe = np.where(xx > 0, xx, 1.0)
+    b = np.tensordot(e, x, axes=(0, 0)) / safe
+    res_ss = float(e @ e) - b**2 * xx  # residual sum of squares after x_j
+    s2 = np.maximum(res_ss, 0.0) / max(e.size - 1 - null.shape[1], 1)
+    return np.where(xx > 0, b / np.sqrt(np.maximum(s2, 1e-300) / safe), 0.0)
 
 
 def cubic_score(ctx: Context) -> tuple[float, int, int, int, float] | None:
@@ -1089,31 +1090,31 @@ def cubic_score(ctx: Context) -> tuple[float, int, int, int, float] | None:
     fs, m = data.fs, cur.model
     f_low = 0.5 * min(ctx.model_freqs or [fs / data.n])
     dyn = cur.dynamics(data.n)
-    forces = []
+    labels, responses = [], []  # (coordinate's channel, integrals); (N, l) per force and input
     for j in range(data.n_outputs):
         for p in range(3):
             z = integrate(sim[:, j], fs, p, f_low)
             zn = (z - z.mean()) / max(float(z.std()), 1e-300)
             q = zn**3
-            forces.append((j, p, q - zn * (q @ zn) / max(float(zn @ zn), 1e-300)))
+            q = q - zn * (q @ zn) / max(float(zn @ zn), 1e-300)
+            for i in range(data.n_inputs):
+                labels.append((j, p))
+                responses.append(simulate_linear(dyn, m.B[:, [i]], m.D[:, [i]], q[:, None]))
+    x_all = np.stack(responses, axis=-1)  # (N, l, forces x inputs)
+    nulls = _null_directions(dyn, u, sim)
     rows = ctx.split.val[ctx.split.val >= SCORE_AR_ORDER]
     best = None
     for c in range(data.n_outputs):
         _, ar = rs.prewhiten(e[:, c], SCORE_AR_ORDER)
-        filt = np.r_[1.0, -ar]
 
-        def white(v: np.ndarray, filt=filt) -> np.ndarray:
+        def white(v: np.ndarray, filt=np.r_[1.0, -ar]) -> np.ndarray:
             return signal.lfilter(filt, [1.0], v - v.mean(axis=0), axis=0)[rows]
 
-        ew = white(e[:, c])
-        null = white(_null_directions(cur, data, u, sim, c))
-        for j, p, q in forces:
-            for i in range(data.n_inputs):
-                x = simulate_linear(dyn, m.B[:, [i]], m.D[:, [i]], q[:, None])[:, c]
-                t = _partial_t(ew, white(x), null)
-                pv = float(2 * stats.norm.sf(abs(t)))
-                if best is None or pv < best[0]:
-                    best = (pv, j, p, c, t)
+        t = _partial_t(white(e[:, c]), white(x_all[:, c, :]), white(nulls[c]))
+        k = int(np.argmax(np.abs(t)))
+        pv = float(2 * stats.norm.sf(abs(t[k])))
+        if best is None or pv < best[0]:
+            best = (pv, *labels[k], c, float(t[k]))
     return best
 
 
