@@ -5,7 +5,7 @@ validation error per effect, the clean cases' additions, every gate's false-alar
 clean cases and the time per case.
 
     ros2_ws/env python benchmarks/validate_suite.py [--per-effect 15] [--clean 40] [--workers 2]
-        [--failures] [--ceiling] [--json PATH]
+        [--failures] [--ceiling] [--input-noise 0.01] [--json PATH]
 
 The issue's suite (15 cases per effect, 40 clean); ``src/sysid_node/test/test_validation_suite.py``
 runs its first 6 cases per effect and all 40 clean ones (seeded draws of
@@ -15,6 +15,9 @@ every effect case's clean twin (the same draw without the effect) and prints, pe
 median ceiling (how far the baseline's error falls without the effect: the error the effect
 adds, what adding it can be expected to remove) and the share ranked right among the cases
 whose ceiling is at least 10 %.
+``--input-noise F`` measures every case's input with white noise of F x its RMS (the generator's
+inputs are exact; a measured force or command is not): the gates' false-alarm rates on the clean
+cases with a measured input.
 ``--json`` writes the summary and every case's result.
 """
 
@@ -37,10 +40,13 @@ def main() -> None:
                     help="one line per effect case not ranked right (gate, trial drop, note)")
     ap.add_argument("--ceiling", action="store_true",
                     help="also the clean twin's baseline error: the error each effect adds")
+    ap.add_argument("--input-noise", type=float, default=0.0, metavar="F",
+                    help="measure the input with white noise of F x its RMS (default 0: exact)")
     ap.add_argument("--json", metavar="PATH", help="write the summary and every case's result")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers, args.ceiling)
+    results = S.run_suite(S.cases(args.per_effect, args.clean), args.workers, args.ceiling,
+                           args.input_noise)
     wall = time.perf_counter() - t0
     sm = S.summary(results)
     print(S.confusion_table(results))

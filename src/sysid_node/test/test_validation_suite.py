@@ -13,6 +13,7 @@ xfail test below says which and by how much.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from sysid_node.validation import suite as S
 
@@ -106,3 +107,14 @@ def test_issue_target_right_first_90_percent_and_median_drop_60_percent(suite_su
              if r["right_first"] < 0.9}
     assert not short, f"below 90 %: {short}"
     assert suite_summary["median_drop"] >= 0.6
+
+
+def test_input_noise_measures_the_input_with_seeded_white_noise():
+    sc = S.draw(None, S.cases(0, 1)[0][1], "coloured")
+    exact, noisy, again = S._data(sc), S._data(sc, 0.02, 7), S._data(sc, 0.02, 7)
+    np.testing.assert_allclose(exact.u, sc.u)
+    np.testing.assert_allclose(noisy.y, sc.y)
+    np.testing.assert_allclose(noisy.u, again.u)
+    share = np.sqrt(np.mean((noisy.u - sc.u) ** 2) / np.mean(sc.u**2))
+    assert 0.015 < share < 0.025
+    assert not np.allclose(S._data(sc, 0.02, 8).u, noisy.u)

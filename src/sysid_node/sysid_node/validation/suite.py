@@ -38,6 +38,8 @@ CLEAN_CASES = 40
 TEST_CASES_PER_EFFECT = 6
 TEST_CLEAN_CASES = CLEAN_CASES
 SEED = 11
+#: offset of the input measurement noise's seed from the case's (``input_noise``)
+INPUT_NOISE_SEED = 31337
 #: A case is detectable when its effect raises the baseline's validation error by at least
 #: this share over its clean twin's (:func:`ceiling`): twice the 5 % an addition must gain,
 #: as the twin's new noise draw alone moves the comparison by several percent.
@@ -78,10 +80,17 @@ def cases(
     return out
 
 
-def _data(sc) -> ValidationData:
+def _data(sc, input_noise: float = 0.0, seed: int = 0) -> ValidationData:
+    """The record as ``validate`` reads it; ``input_noise`` > 0 measures the input with white
+    noise of that fraction of its RMS (seeded by ``seed``): the generator's inputs are exact,
+    a measured force or command is not."""
     sig = {k: np.interp(sc.t, ts, v) for k, (ts, v) in sc.signals.items()}
     names = [f"y{c}" for c in range(sc.y.shape[1])]
-    return ValidationData(sc.t, sc.y, sc.u, sc.fs, names, ["u0"], sig)
+    u = sc.u
+    if input_noise > 0 and u is not None:
+        rms = np.sqrt(np.mean(u**2, axis=0))
+        u = u + input_noise * rms * np.random.default_rng(seed).standard_normal(u.shape)
+    return ValidationData(sc.t, sc.y, u, sc.fs, names, ["u0"], sig)
 
 
 def draw(effect: str | None, seed: int, kind: str):
@@ -149,8 +158,12 @@ def ceiling(effect: str, seed: int, kind: str) -> float:
     return float(1.0 - e[1] / max(e[0], 1e-300))
 
 
-def run_case(case: tuple[str | None, int, str], with_ceiling: bool = False) -> CaseResult:
-    """Validate one case with the nominal order and ``--auto`` (and its :func:`ceiling`)."""
+def run_case(
+    case: tuple[str | None, int, str], with_ceiling: bool = False, input_noise: float = 0.0
+) -> CaseResult:
+    """Validate one case with the nominal order and ``--auto`` (and its :func:`ceiling`);
+    ``input_noise``: the input measured with that fraction of its RMS as white noise
+    (:func:`_data`; the ceiling stays the exact input's)."""
     from .workflow import Options, run_validation
 
     effect, seed, kind = case
@@ -160,7 +173,8 @@ def run_case(case: tuple[str | None, int, str], with_ceiling: bool = False) -> C
         res.ceiling = ceiling(effect, seed, kind)
     t0 = time.perf_counter()
     try:
-        out = run_validation(_data(sc), Options(order=sc.nominal_order, auto=True))
+        data = _data(sc, input_noise, seed + INPUT_NOISE_SEED)
+        out = run_validation(data, Options(order=sc.nominal_order, auto=True))
     except (ValidationError, ValueError, FloatingPointError, np.linalg.LinAlgError) as err:
         res.error = f"{type(err).__name__}: {' '.join(str(err).split())}"
         return res
@@ -180,11 +194,12 @@ def run_case(case: tuple[str | None, int, str], with_ceiling: bool = False) -> C
 
 
 def run_suite(
-    case_list: list | None = None, workers: int = 2, with_ceiling: bool = False
+    case_list: list | None = None, workers: int = 2, with_ceiling: bool = False,
+    input_noise: float = 0.0,
 ) -> list[CaseResult]:
     """Every case on ``workers`` processes (results in case order)."""
     case_list = cases() if case_list is None else case_list
-    one = partial(run_case, with_ceiling=with_ceiling)
+    one = partial(run_case, with_ceiling=with_ceiling, input_noise=input_noise)
     if workers <= 1:
         return [one(c) for c in case_list]
     with ProcessPoolExecutor(workers) as ex:
