@@ -7,10 +7,10 @@ vocabulary changes the structure that is re-fitted (:class:`ModelSpec`):
 * ``missing_mode``: two more states (one more mode) and no band restriction;
 * ``periodic_disturbance``: additive harmonic regressors cos/sin(k phi(t)), phi = 2 pi int f dt,
   f the measured rotating speed [Hz] (N/rev) or a fixed frequency;
-* ``parameter_varying``: with an input, every mode's frequency and damping affine in a
-  scheduling signal theta (:mod:`.lpv_affine`: theta may keep moving); ``form=local``, or
-  output-only data: local models identified at operating points of theta and interpolated
-  linearly between them, the LPV model (2) of Sec. IV;
+* ``parameter_varying``: with an input, every mode's frequency affine in a scheduling
+  signal theta, its decay rate refitted but constant (:mod:`.lpv_affine`: theta may keep
+  moving); ``form=local``, or output-only data: local models identified at operating points
+  of theta and interpolated linearly between them, the LPV model (2) of Sec. IV;
 * ``input_delay``: the input delayed by d samples (fractional d: linear interpolation between
   samples, a transport delay shorter than the sample period);
 * ``nonlinear_stiffness``: a cubic stiffness force q = z^3 on a structural coordinate z: an

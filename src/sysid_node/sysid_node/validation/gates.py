@@ -636,7 +636,7 @@ def parameter_varying(ctx: Context) -> Hypothesis:
     h.alternatives = [{"signal": k} for _, k in others[:2]]
     if kind == "trial":
         how = (
-            f"modes whose frequency and damping follow {name} predict the validation data "
+            f"modes whose frequency follows {name} predict the validation data "
             f"{100 * r2:.0f} % better than the model and better than modes following time "
             f"(held-out comparison p={p:.1e})"
         )

@@ -1,5 +1,5 @@
-"""Modes whose frequency and damping follow a scheduling signal continuously: the affine LPV
-structure of ``parameter_varying`` and its score test.
+"""Modes whose frequency follows a scheduling signal continuously: the affine LPV structure
+of ``parameter_varying`` and its score test.
 
 The local models of Sec. IV (:class:`.augment.LpvModel`) need stretches of steady operation
 at a few operating points; a signal that keeps moving (airspeed along a flight) leaves none.

@@ -531,7 +531,7 @@ def _fit_affine(
 ) -> FittedModel:
     """parameter_varying with a continuous schedule: the structure without it is fitted first
     (its poles refined on the free run; ``like`` when it is that structure already), then every
-    complex pole's frequency and damping are made affine in the signal and refined on the
+    complex pole's frequency is made affine in the signal and refined on the
     estimation samples' free run (:func:`.lpv_affine.fit_affine`)."""
     if spec.lpv_signal not in data.signals and spec.lpv_signal != TIME_SIGNAL:
         raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
