@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from sysid_node.validation import gates as G
 from sysid_node.validation import suite as S
+from sysid_node.validation.data import ValidationData
 from sysid_node.validation.gates import Context
 from sysid_node.validation.lpv_affine import tv_scan
 from sysid_node.validation.workflow import Options, run_validation
@@ -65,7 +66,8 @@ def test_a_signal_that_moves_like_time_is_not_credited():
     out = run_validation(data, Options(order=sc.nominal_order))
     ctx = Context(data, out.split, out.base, out.before, dict(data.signals))
     trials = G.schedule_trials(ctx)
-    assert set(trials) == {"/airspeed", "/rotor_speed"}
+    assert {name for name, _ in trials} == {"/airspeed", "/rotor_speed"}
+    assert {decay for _, decay in trials} == set(G.DECAY_FORMS)
     for p, _ in trials.values():
         assert p == 1.0
     pv = next(h for h in out.hyps if h.effect == "parameter_varying")
@@ -92,3 +94,45 @@ def test_the_decay_rate_does_not_follow_the_signal_by_default():
     am = out.current.affine
     assert am is not None and np.all(am.q1 == 0.0)
     assert out.error_drop >= 0.65
+
+
+def _flutter_like(seed: int) -> tuple[ValidationData, np.ndarray]:
+    """One 5 Hz mode at 200 Hz, white force in, whose damping falls from 4 % to 0.5 % and whose
+    frequency falls 6 % as the airspeed rises (a mode approaching flutter); 3 % output noise."""
+    rng = np.random.default_rng(seed)
+    fs, n = 200.0, 16000
+    t = np.arange(n) / fs
+    speed = 60 + 8 * np.sin(2 * np.pi * t / 23) + 5 * np.sin(2 * np.pi * t / 9.0 + 1.0)
+    x = (speed - speed.min()) / np.ptp(speed)
+    f = 5.0 * (1 - 0.06 * x)
+    zeta = 0.04 - 0.035 * x
+    w = 2 * np.pi * f / fs
+    u = rng.standard_normal(n)
+    z = tv_scan(-zeta * w + 1j * w * np.sqrt(1 - zeta**2), u, 0j)
+    y = np.imag(z)[:, None]
+    y = y + 0.03 * np.std(y) * rng.standard_normal(y.shape)
+    data = ValidationData(t, y, u[:, None], fs, ["y0"], ["u0"], {"/airspeed": speed})
+    return data, zeta
+
+
+def test_a_damping_that_moves_with_the_signal_is_tried_and_kept():
+    """The trial also fits the decay rates moving with the signal (``decay=moving``) and keeps
+    that when it lowers the validation error most: on a flutter-like record the damping
+    changes eight-fold with airspeed and the constant-decay structure cannot follow it."""
+    data, _ = _flutter_like(3)
+    out = run_validation(data, Options(order=2, auto=True))
+    pv = next(h for h in out.hyps if h.effect == "parameter_varying")
+    assert pv.significant and pv.parameters.get("decay") == "moving"
+    assert out.current.affine is not None and np.any(out.current.affine.q1 != 0.0)
+    assert "the best of" in pv.trial_note
+
+
+def test_decay_parameter_is_checked():
+    from sysid_node.validation.augment import ModelSpec
+    from sysid_node.validation.data import ValidationError
+
+    spec = ModelSpec(order=2)
+    assert spec.with_effect("parameter_varying", {"signal": "a", "decay": "moving"}).lpv_decay
+    assert not spec.with_effect("parameter_varying", {"signal": "a"}).lpv_decay
+    with pytest.raises(ValidationError, match="decay"):
+        spec.with_effect("parameter_varying", {"signal": "a", "decay": "sideways"})

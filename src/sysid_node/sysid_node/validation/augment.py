@@ -8,9 +8,10 @@ vocabulary changes the structure that is re-fitted (:class:`ModelSpec`):
 * ``periodic_disturbance``: additive harmonic regressors cos/sin(k phi(t)), phi = 2 pi int f dt,
   f the measured rotating speed [Hz] (N/rev) or a fixed frequency;
 * ``parameter_varying``: with an input, every mode's frequency affine in a scheduling
-  signal theta, its decay rate refitted but constant (:mod:`.lpv_affine`: theta may keep
-  moving); ``form=local``, or output-only data: local models identified at operating points
-  of theta and interpolated linearly between them, the LPV model (2) of Sec. IV;
+  signal theta, its decay rate refitted but constant unless ``decay=moving``
+  (:mod:`.lpv_affine`: theta may keep moving); ``form=local``, or output-only data: local
+  models identified at operating points of theta and interpolated linearly between them,
+  the LPV model (2) of Sec. IV;
 * ``input_delay``: the input delayed by d samples (fractional d: linear interpolation between
   samples, a transport delay shorter than the sample period);
 * ``nonlinear_stiffness``: a cubic stiffness force q = z^3 on a structural coordinate z: an
@@ -69,6 +70,9 @@ class ModelSpec:
     #: "affine": poles move continuously with the signal (lpv_affine; needs an input);
     #: "local": local models at operating points (Sec. IV); "auto": affine when there is an input
     lpv_form: str = "auto"
+    #: the affine form's decay rates follow the signal too (default: frequencies only; a free
+    #: damping slope over-fits a lightly damped mode unless the data ask for it)
+    lpv_decay: bool = False
     cubic_channel: int | None = None
     cubic_integrals: int = 0  # the spring's coordinate: output (0), its integral (1) or double (2)
     cubic_input: int = 0  # the input the spring force acts with (Duffing: where the input acts)
@@ -112,6 +116,10 @@ class ModelSpec:
             s.lpv_form = str(p.get("form", s.lpv_form))
             if s.lpv_form not in ("auto", "affine", "local"):
                 raise ValidationError("parameter_varying: form must be auto, affine or local")
+            decay = str(p.get("decay", "constant"))
+            if decay not in ("constant", "moving"):
+                raise ValidationError("parameter_varying: decay must be constant or moving")
+            s.lpv_decay = decay == "moving"
         elif effect == "input_delay":
             if "samples" in p:
                 s.delay = float(p["samples"])

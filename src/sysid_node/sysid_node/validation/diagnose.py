@@ -138,8 +138,8 @@ def rank(hyps: list[Hypothesis]) -> list[Hypothesis]:
 def _refit(
     ctx: Context, spec: ModelSpec, effect: str, params: dict
 ) -> tuple[FittedModel | None, str]:
-    done = ctx.fitted.get((effect, params.get("signal")))
-    fresh = set(params) <= {"signal", "form"} and params.get("form", "auto") != "local"
+    done = ctx.fitted.get((effect, params.get("signal"), params.get("decay", "constant")))
+    fresh = set(params) <= {"signal", "form", "decay"} and params.get("form", "auto") != "local"
     if done is not None and fresh:  # the affine structure the gate fitted already
         return done, ""
     try:

@@ -535,24 +535,29 @@ def mode_shift_test(
 SCHEDULE_MIN_DROP = 0.05  # a schedule must lower the held-out error by 5 % (as any trial)
 
 
-def schedule_trials(ctx: Context) -> dict[str, tuple[float, float]]:
-    """The affine structure (:mod:`.lpv_affine`) fitted with every candidate signal and with
-    time itself (the placebo): {signal: (p, drop)}, p the largest of the held-out comparisons
-    with the current model (a drop of at least :data:`SCHEDULE_MIN_DROP`), with the placebo
-    and with the same structure refined with nothing moving. Modes that merely drift, or a
-    model error that any slow modulation fits (a swept input's), are explained by time as
-    well; a better constant refit is no schedule: neither counts for a signal. The fitted
-    models are kept for the trial (``ctx.fitted``). Only for the free run of a linear model
-    (a first-order score test on the pole sensitivities was tried and dropped: it has no power
-    once a mode moves by more than its bandwidth, and any slow modulation fits a swept input's
-    model error)."""
+#: the affine structure's forms: frequencies following the signal, decay rates constant or
+#: following it too (a flutter-like mode whose damping falls with airspeed)
+DECAY_FORMS = ("constant", "moving")
+
+
+def schedule_trials(ctx: Context) -> dict[tuple[str, str], tuple[float, float]]:
+    """The affine structure (:mod:`.lpv_affine`) fitted with every candidate signal, in both
+    decay forms (:data:`DECAY_FORMS`), and with time itself (the placebo, in the same form):
+    {(signal, decay): (p, drop)}, p the largest of the held-out comparisons with the current
+    model (a drop of at least :data:`SCHEDULE_MIN_DROP`), with the placebo and with the same
+    structure refined with nothing moving. Modes that merely drift, or a model error that any
+    slow modulation fits (a swept input's), are explained by time as well; a better constant
+    refit is no schedule: neither counts for a signal. The fitted models are kept for the
+    trial (``ctx.fitted``). Only for the free run of a linear model (a first-order score test
+    on the pole sensitivities was tried and dropped: it has no power once a mode moves by more
+    than its bandwidth, and any slow modulation fits a swept input's model error)."""
     cur, a, data = ctx.current, ctx.assessment, ctx.data
     if (a.primary != "free_run" or cur.model is None or cur.locals or cur.affine is not None
             or cur.spec.feedback or cur.spec.cubic_channel is not None or not data.n_inputs):
         return {}
 
-    def trial(name: str):
-        params = {"signal": name, "form": "affine"}
+    def trial(name: str, decay: str):
+        params = {"signal": name, "form": "affine", "decay": decay}
         try:
             fm = fit(cur.spec.with_effect("parameter_varying", params), data, ctx.split,
                      like=cur)
@@ -560,24 +565,25 @@ def schedule_trials(ctx: Context) -> dict[str, tuple[float, float]]:
             return None, None
         if not fm.stable(free_run=True):
             return None, None
-        ctx.fitted[("parameter_varying", name)] = fm
+        ctx.fitted[("parameter_varying", name, decay)] = fm
         still = replace(fm, affine=fm.affine.constant)
         return (primary_error(fm, data, ctx.split, "free_run"),
                 primary_error(still, data, ctx.split, "free_run"))
 
-    placebo, _ = trial(TIME_SIGNAL)
     out = {}
-    for name in ctx.signals:
-        e1, e_still = trial(name)
-        if e1 is None:
-            continue
-        cmp = compare_primary(a, e1)
-        p = cmp.p_value if cmp.drop >= SCHEDULE_MIN_DROP else 1.0
-        for other in (placebo, e_still):
-            if other is not None:
-                vs = rs.compare_errors(other, e1, a.y_std, rank_batches=40)
-                p = p if vs.drop >= SCHEDULE_MIN_DROP else 1.0
-        out[name] = (p, max(cmp.drop, 0.0))
+    for decay in DECAY_FORMS:
+        placebo, _ = trial(TIME_SIGNAL, decay)
+        for name in ctx.signals:
+            e1, e_still = trial(name, decay)
+            if e1 is None:
+                continue
+            cmp = compare_primary(a, e1)
+            p = cmp.p_value if cmp.drop >= SCHEDULE_MIN_DROP else 1.0
+            for other in (placebo, e_still):
+                if other is not None:
+                    vs = rs.compare_errors(other, e1, a.y_std, rank_batches=40)
+                    p = p if vs.drop >= SCHEDULE_MIN_DROP else 1.0
+            out[(name, decay)] = (p, max(cmp.drop, 0.0))
     return out
 
 
@@ -607,12 +613,13 @@ def parameter_varying(ctx: Context) -> Hypothesis:
     for name, s in ctx.signals.items():
         sv = s[val]
         if trials:  # the structure itself answers (the window tests only where it cannot)
-            if name in trials:
-                p, drop = trials[name]
-                n_tests += 1
-                per_signal[name] = min(per_signal.get(name, 1.0), p)
-                if best is None or p < best[0]:
-                    best = (p, drop, name, 0, "trial")
+            for decay in DECAY_FORMS:
+                if (name, decay) in trials:
+                    p, drop = trials[(name, decay)]
+                    n_tests += 1
+                    per_signal[name] = min(per_signal.get(name, 1.0), p)
+                    if best is None or p < best[0]:
+                        best = (p, drop, name, 0, "trial", decay)
             continue
         for c in range(e.shape[1]):
             f_low = freqs[0] if freqs else fs / max(e.shape[0], 1)
@@ -623,20 +630,25 @@ def parameter_varying(ctx: Context) -> Hypothesis:
             for kind, p, r2 in tests:
                 per_signal[name] = min(per_signal.get(name, 1.0), p)
                 if best is None or p < best[0]:
-                    best = (p, r2, name, c, kind)
+                    best = (p, r2, name, c, kind, "")
     if best is None:
         h.evidence = "no candidate scheduling signal in the data"
         return h
-    p, r2, name, c, kind = best
+    p, r2, name, c, kind, decay = best
     h.p_value = float(min(1.0, p * n_tests))
-    h.parameters = {"signal": name}
+    h.parameters = {"signal": name, "decay": decay} if decay else {"signal": name}
     # every other candidate is worth a trial once the gate fires: the trial's held-out drop
-    # decides (the power and shift tests can prefer a signal correlated with the right one)
+    # decides (the power and shift tests can prefer a signal correlated with the right one;
+    # the other decay form too)
     others = sorted((q, k) for k, q in per_signal.items() if k != name)
     h.alternatives = [{"signal": k} for _, k in others[:2]]
+    if decay:
+        other = DECAY_FORMS[1 - DECAY_FORMS.index(decay)]
+        h.alternatives.insert(0, {"signal": name, "decay": other})
     if kind == "trial":
+        what = "frequency and damping follow" if decay == "moving" else "frequency follows"
         how = (
-            f"modes whose frequency follows {name} predict the validation data "
+            f"modes whose {what} {name} predict the validation data "
             f"{100 * r2:.0f} % better than the model and better than modes following time "
             f"(held-out comparison p={p:.1e})"
         )

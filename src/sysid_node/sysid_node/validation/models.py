@@ -523,7 +523,8 @@ def _fit_core(
 
 
 def _bare(spec: ModelSpec) -> ModelSpec:
-    return replace(spec, lpv_signal=None, lpv_form="auto", lpv_points=3, added=[])
+    return replace(spec, lpv_signal=None, lpv_form="auto", lpv_points=3, lpv_decay=False,
+                   added=[])
 
 
 def _fit_affine(
@@ -531,8 +532,8 @@ def _fit_affine(
 ) -> FittedModel:
     """parameter_varying with a continuous schedule: the structure without it is fitted first
     (its poles refined on the free run; ``like`` when it is that structure already), then every
-    complex pole's frequency is made affine in the signal and refined on the
-    estimation samples' free run (:func:`.lpv_affine.fit_affine`)."""
+    complex pole's frequency (and with ``spec.lpv_decay`` its decay rate) is made affine in
+    the signal and refined on the estimation samples' free run (:func:`.lpv_affine.fit_affine`)."""
     if spec.lpv_signal not in data.signals and spec.lpv_signal != TIME_SIGNAL:
         raise ValidationError(f"no scheduling signal {spec.lpv_signal} in the data")
     same = is_plain(like) and _bare(like.spec) == _bare(spec)
@@ -543,7 +544,8 @@ def _fit_affine(
     phi = regressors(spec, data)
     fm = FittedModel(spec, base.order, model=m, n_outputs=data.n_outputs)
     u = shift(data.u, spec.delay)
-    fm.affine, fm.theta = fit_affine(m.A, fm.schedule(data), u, data.y, split.est, data.fs, phi)
+    fm.affine, fm.theta = fit_affine(m.A, fm.schedule(data), u, data.y, split.est, data.fs, phi,
+                                     decay_slope=spec.lpv_decay)
     fm.simulation_fit = True
     return fm
 
