@@ -235,3 +235,22 @@ def test_a_pole_confirmed_by_a_run_and_then_gone_is_not_tracked_until_the_timeou
         out = tr.update([_c(7.0, 0.5)] if k % 2 else [], 0.05 * k)
     assert {round(t.frequency_hz, 1): t.status for t in out} == {3.0: "tentative",
                                                                 7.0: "tracked"}
+
+
+def test_a_weak_pole_under_a_strong_neighbours_skirt_is_not_tracked():
+    """Beside a strong 0.26 %-damped 120 Hz mode a realization places weak poles at 113.5 and
+    130 Hz (random suite draw 46) whose peaks stay below that mode's own response there: they are
+    tentative. A weak mode far from it and a mode of comparable strength beside it are tracked."""
+    def c(f, z, contribution):
+        return ModalParameters(f, z, contribution=contribution, shape=np.array([1.0], complex))
+
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(20):
+        out = tr.update([c(60.0, 0.01, 0.2), c(113.5, 0.005, 0.2), c(120.4, 0.0026, 100.0),
+                         c(130.5, 0.004, 0.1)], 0.1 * k)
+    assert {round(t.frequency_hz, 1): t.status for t in out} == {
+        60.0: "tracked", 113.5: "tentative", 120.4: "tracked", 130.5: "tentative"}
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(20):
+        out = tr.update([c(113.5, 0.01, 20.0), c(120.4, 0.0026, 100.0)], 0.1 * k)
+    assert [t.status for t in out] == ["tracked", "tracked"]
