@@ -17,6 +17,7 @@ above. The main estimator's modes below the split are replaced by this one's
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
 from typing import Any
 
@@ -30,6 +31,8 @@ from sysid_node.decimation import Decimator
 RATE_PER_SPLIT = 3.0
 #: The largest decimation factor of the low group.
 MAX_FACTOR = 100
+#: Realizations the low group keeps for :meth:`LowBand.current` (those of a piece fed at once).
+RECENT_REALIZATIONS = 16
 
 
 def max_split_hz(values: dict[str, Any], n_outputs: int, n_inputs: int, fs: float,
@@ -86,6 +89,8 @@ class LowBand:
         self._n = 0  # samples fed (the decimator's grid)
         self.modes: list = []  # the latest realization's modes below split_hz
         self.modes_time_s = -math.inf  # its data time [s] on the main estimator's clock
+        #: (data time [s] on the main estimator's clock, modes) of the recent realizations
+        self._recent: deque = deque(maxlen=RECENT_REALIZATIONS)
 
     def interval(self, values: dict[str, Any]) -> int:
         return max(1, round(self.rate / values["realization_rate"]))
@@ -109,20 +114,32 @@ class LowBand:
         if not realize:
             self.estimator.absorb(ud, yd)
             return
-        models = self.estimator.update(ud, yd) or []
-        if models:
-            # contribution is over the innovation variance, which for the same noise level
-            # (spectral density) scales with the rate: on the main estimator's scale, so that
-            # the ranking of the two groups' modes (max_modes) compares like with like
-            scale = self.rate / self._fs
+        est = self.estimator
+        models = est.update(ud, yd) or []
+        # contribution is over the innovation variance, which for the same noise level
+        # (spectral density) scales with the rate: on the main estimator's scale, so that
+        # the ranking of the two groups' modes (max_modes) compares like with like
+        scale = self.rate / self._fs
+        for mdl in models:
+            lag = est.samples_seen / self.rate - float(getattr(mdl, "time_s", math.nan))
+            t = end_s - lag if math.isfinite(lag) else end_s
             self.modes = [replace(m, contribution=m.contribution * scale)
-                          for m in models[-1].modes if m.frequency_hz < self.split_hz]
-            self.modes_time_s = end_s
+                          for m in mdl.modes if m.frequency_hz < self.split_hz]
+            self.modes_time_s = t
+            self._recent.append((t, self.modes))
 
     def current(self, now_s: float, realization_rate: float) -> list:
-        """The latest modes, unless the latest realization is older than two realization
-        periods at data time ``now_s`` [s] (an estimator that stopped realizing says nothing)."""
-        return self.modes if now_s - self.modes_time_s <= 2.0 / realization_rate else []
+        """The modes of the latest realization made by data time ``now_s`` [s] (within one
+        sample at this rate), unless it is older than two realization periods (an estimator
+        that stopped realizing says nothing). Each of the main estimator's realizations thus
+        gets this estimator's own of the same time, not the latest of the piece both were fed:
+        two main realizations in a piece would count one low realization twice in the
+        tracker (its confirmation and its median)."""
+        made = [(t, m) for t, m in self._recent if t <= now_s + 1.0 / self.rate]
+        if not made:
+            return []
+        t, modes = made[-1]
+        return modes if now_s - t <= 2.0 / realization_rate else []
 
     def restart(self) -> None:
         """Data resumes after a gap: no Hankel row may span it."""

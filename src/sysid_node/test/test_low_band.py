@@ -221,3 +221,20 @@ def _each_mode_right_at_the_end(recs, modes, seconds: float = 6.0, share: float 
         right = [any(m.status == "tracked" and abs(m.frequency_hz / f - 1) <= 0.02
                      for m in r.modes) for r in last]
         assert np.mean(right) >= share, (f, np.mean(right))
+
+
+def test_each_main_realization_gets_the_low_realization_of_its_own_time(wide_record):
+    """Fed a 0.1 s piece at once, the low group realizes twice in it (20 Hz) and so does the
+    main estimator: each main realization gets the low one made by its time, not the piece's
+    latest twice (which counted one low realization as two hits in the tracker)."""
+    low = LowBand(RecursiveDSRA, P.defaults(), 2, 0, FS, 30.0, 2.2)
+    piece, same, pairs = int(0.1 * FS), 0, 0
+    for a in range(0, int(4 * FS), piece):
+        end_s = (a + piece) / FS
+        low.update(None, wide_record[a : a + piece], True, end_s)
+        first, second = low.current(end_s - 0.05, 20.0), low.current(end_s, 20.0)
+        if first and second:
+            pairs += 1
+            same += first is second
+    assert pairs > 20
+    assert same == 0
