@@ -87,9 +87,8 @@ class LowBand:
         self._fs = fs
         self._period_ns = 1e9 / fs
         self._n = 0  # samples fed (the decimator's grid)
-        self.modes: list = []  # the latest realization's modes below split_hz
-        self.modes_time_s = -math.inf  # its data time [s] on the main estimator's clock
-        #: (data time [s] on the main estimator's clock, modes) of the recent realizations
+        #: (data time [s] on the main estimator's clock, modes below split_hz) of the recent
+        #: realizations
         self._recent: deque = deque(maxlen=RECENT_REALIZATIONS)
 
     def interval(self, values: dict[str, Any]) -> int:
@@ -123,10 +122,8 @@ class LowBand:
         for mdl in models:
             lag = est.samples_seen / self.rate - float(getattr(mdl, "time_s", math.nan))
             t = end_s - lag if math.isfinite(lag) else end_s
-            self.modes = [replace(m, contribution=m.contribution * scale)
-                          for m in mdl.modes if m.frequency_hz < self.split_hz]
-            self.modes_time_s = t
-            self._recent.append((t, self.modes))
+            self._recent.append((t, [replace(m, contribution=m.contribution * scale)
+                                     for m in mdl.modes if m.frequency_hz < self.split_hz]))
 
     def current(self, now_s: float, realization_rate: float) -> list:
         """The modes of the latest realization made by data time ``now_s`` [s] (within one
