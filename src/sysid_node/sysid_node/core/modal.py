@@ -94,6 +94,15 @@ def mpc(shapes: np.ndarray) -> np.ndarray:
         return np.where(tot > 0, ((sxx - syy) ** 2 + 4 * sxy**2) / tot**2, np.nan)
 
 
+def peak_over_floor(
+    contribution: np.ndarray, zeta: np.ndarray, freq_hz: np.ndarray, fs: float
+) -> np.ndarray:
+    """A mode's spectral peak over the innovation's level, ``contribution x fs / (2 pi zeta f)``
+    (``ModalParameters.snr``): a resonance's peak is its variance over its half-power
+    bandwidth 2 zeta f, the white floor's level its variance over fs / 2."""
+    return contribution * fs / (2 * np.pi * np.maximum(np.abs(zeta), 1e-6) * freq_hz)
+
+
 def extract_modes(
     a: np.ndarray,
     c: np.ndarray,
@@ -152,7 +161,7 @@ def extract_modes(
         if noise_cov is not None:
             floor = np.maximum(np.real(np.diag(noise_cov)), 1e-300)
             contrib = (var_c / floor[:, None]).sum(axis=0)
-            snr = contrib * fs / (2 * np.pi * np.maximum(np.abs(zeta), 1e-6) * freq)
+            snr = peak_over_floor(contrib, zeta, freq, fs)
     f_std = np.full(sel.size, np.nan)
     z_std = np.full(sel.size, np.nan)
     if a_cov_rows is not None and a_cov_cols is not None:

@@ -55,7 +55,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .modal import ModalParameters, mac
+from .modal import ModalParameters, mac, peak_over_floor
 
 STATUSES = ("tentative", "tracked", "lost")
 #: A split pole in a track's gate with this many times the contribution of the pole nearest
@@ -328,8 +328,8 @@ class ModeTracker:
         neighbour: beside a strong lightly damped mode an over-sized realization places weak
         poles (random suite: 113 and 130 Hz beside a 0.26 %-damped 120 Hz mode) that no
         spectrum could tell from that mode's own response there. Peak levels over the noise
-        floor are contribution / (zeta f) (``ModalParameters.snr`` without its common factor
-        fs / 2 pi), the neighbour's skirt at r = f / f_b its peak times
+        floor are :func:`.modal.peak_over_floor` (its common factor fs does not matter: only
+        their ratios are compared), the neighbour's skirt at r = f / f_b its peak times
         (2 zeta_b)^2 / ((1 - r^2)^2 + (2 zeta_b r)^2) for a displacement, times r^4 for an
         acceleration: the lower of the two (r^4 below the neighbour, 1 above it)."""
         live = [tr for tr in self.tracks if tr.status == "tracked"]
@@ -340,7 +340,7 @@ class ModeTracker:
         c = np.array([tr.rank for tr in live])
         if not np.all(np.isfinite(c) & (f > 0)):
             return []
-        peak = np.maximum(c, 0.0) / (z * f)
+        peak = peak_over_floor(np.maximum(c, 0.0), z, f, 2 * np.pi)
         r = f[:, None] / f[None, :]  # (a, b): a's frequency over the neighbour b's
         skirt = (2 * z[None, :]) ** 2 / ((1 - r**2) ** 2 + (2 * z[None, :] * r) ** 2)
         skirt *= np.minimum(1.0, r**4)
