@@ -151,17 +151,19 @@ def _refit(
     return fm, ""
 
 
-def _delay_refit(ctx: Context, spec: ModelSpec, params: dict) -> tuple[FittedModel | None, str]:
-    """The delay's structure re-fitted as the model is and, when it differs, with the
+def _delay_refit(
+    ctx: Context, spec: ModelSpec, effect: str, params: dict
+) -> tuple[FittedModel | None, str]:
+    """The delay's (``effect``) structure re-fitted as the model is and, when it differs, with the
     realization the baseline's selection (:func:`.baseline.rank_realizations`) picks for the
     delayed input; the lower estimation free-run error is kept. The model's horizon was
     chosen for the undelayed input, whose subspace realization may have traded a mode for
     the delay's phase; the delayed input's realization need not."""
-    fm, why = _refit(ctx, spec, "input_delay", params)
+    fm, why = _refit(ctx, spec, effect, params)
     alt = _delayed_realization(ctx, spec, float(params["samples"]))
     if alt is None:
         return fm, why
-    fm2, why2 = _refit(ctx, alt, "input_delay", params)
+    fm2, why2 = _refit(ctx, alt, effect, params)
     if fm2 is None:
         return (fm, why) if fm is not None else (None, why2)
     if fm is None or estimation_cost(fm2, ctx.data, ctx.split) < estimation_cost(
@@ -193,6 +195,10 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
     return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from)
 
 
+#: Effects whose trial re-fit is more than :func:`_refit` (same signature).
+_REFITS = {"input_delay": _delay_refit}
+
+
 def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> None:
     """Trial re-fit with the effect added: score, drop p-value and refined parameters.
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
@@ -214,11 +220,9 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     best = None
     note = ""
     fitted = 0
+    refit = _REFITS.get(h.effect, _refit)
     for cand in [params, *h.alternatives]:  # e.g. other scheduling signals, spring coordinates
-        if h.effect == "input_delay":
-            fm, why = _delay_refit(ctx, spec, cand)
-        else:
-            fm, why = _refit(ctx, spec, h.effect, cand)
+        fm, why = refit(ctx, spec, h.effect, cand)
         if fm is None:
             note = note or why
             continue
