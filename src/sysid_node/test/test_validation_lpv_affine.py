@@ -125,6 +125,11 @@ def test_a_damping_that_moves_with_the_signal_is_tried_and_kept():
     assert pv.significant and pv.parameters.get("decay") == "moving"
     assert out.current.affine is not None and np.any(out.current.affine.q1 != 0.0)
     assert "the best of" in pv.trial_note
+    # the report gives the damping's slope too: 4 % -> 0.5 % over the airspeed's range
+    speed = data.signals["/airspeed"]
+    true_slope = -0.035 / np.ptp(speed)
+    assert pv.parameters["damping_slope_per_unit"] == pytest.approx(true_slope, rel=0.3)
+    assert 0.005 < pv.parameters["mode_damping_ratio"] < 0.04
 
 
 def test_decay_parameter_is_checked():

@@ -379,6 +379,13 @@ def _parameters(
                 mode_frequencies_hz=[float(v) for v in am.frequencies_hz()],
                 frequency_slopes_hz_per_unit=[float(v) for v in slopes],
             )
+            if np.any(am.q1 != 0.0):  # decay=moving: the damping follows the signal too
+                zs = am.damping_slopes()
+                h.parameters.update(
+                    mode_damping_ratio=float(am.damping_ratios()[k]),
+                    damping_slope_per_unit=float(zs[k]),
+                    damping_slopes_per_unit=[float(v) for v in zs],
+                )
     elif eff == "parameter_varying" and fm.lpv is not None:
         fr = fm.lpv.frequencies(data.fs)
         if fr.ndim == 2 and fr.shape[1]:

@@ -142,6 +142,17 @@ class AffineModal:
     def frequencies_hz(self) -> np.ndarray:
         return self.omega * self.fs / (2 * np.pi)
 
+    def damping_ratios(self) -> np.ndarray:
+        """Each complex mode's damping ratio at the signal's mean, -sigma / |log lambda|."""
+        return -self.sigma / np.hypot(self.sigma, self.omega)
+
+    def damping_slopes(self) -> np.ndarray:
+        """d zeta_k / d theta [per unit of the signal] at its mean: with log lambda =
+        sigma (1 + q1 s) + i omega (1 + p1 s), d zeta / d s = -sigma omega^2 (q1 - p1) / r^3,
+        r = |log lambda| (zero when decay and frequency move together: the same damping)."""
+        r = np.hypot(self.sigma, self.omega)
+        return -self.sigma * self.omega**2 * (self.q1 - self.p1) / r**3 / self.theta_std
+
 
 def fit_affine(
     a: np.ndarray,
