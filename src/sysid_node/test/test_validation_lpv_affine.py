@@ -115,11 +115,14 @@ def _flutter_like(seed: int) -> tuple[ValidationData, np.ndarray]:
     return data, zeta
 
 
-def test_a_damping_that_moves_with_the_signal_is_tried_and_kept():
+@pytest.mark.parametrize("seed", [3, 4])
+def test_a_damping_that_moves_with_the_signal_is_tried_and_kept(seed):
     """The trial also fits the decay rates moving with the signal (``decay=moving``) and keeps
     that when it lowers the validation error most: on a flutter-like record the damping
-    changes eight-fold with airspeed and the constant-decay structure cannot follow it."""
-    data, _ = _flutter_like(3)
+    changes eight-fold with airspeed and the constant-decay structure cannot follow it.
+    (Seed 4: the shape refinement once stopped at its first step, its trust region started at
+    the constant refit's hair-off-zero values.)"""
+    data, _ = _flutter_like(seed)
     out = run_validation(data, Options(order=2, auto=True))
     pv = next(h for h in out.hyps if h.effect == "parameter_varying")
     assert pv.significant and pv.parameters.get("decay") == "moving"

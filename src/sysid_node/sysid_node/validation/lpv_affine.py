@@ -231,18 +231,23 @@ def fit_affine(
         return out
 
     def solve(x0: np.ndarray, free: np.ndarray) -> np.ndarray:
-        """Refine the ``free`` entries of x from x0 (the others stay)."""
+        """Refine the ``free`` entries of x from x0 (the others stay). The unknown is the step
+        from x0: the trust region's first radius is then x_scale (scipy starts it at
+        |x0 / x_scale|, which a start a hair off zero, such as the constant refit's, shrinks to
+        nothing: the solver stopped at its first step with a large gradient)."""
         if not free.any():
             return x0
+        start = x0[free]
 
-        def full(xf: np.ndarray) -> np.ndarray:
+        def full(step: np.ndarray) -> np.ndarray:
             x = x0.copy()
-            x[free] = xf
+            x[free] = start + step
             return x
 
         lim = np.r_[np.full(k, 0.5), np.full(k, 0.5), np.full(k, 0.9), np.full(k, 0.9)][free]
-        sol = least_squares(lambda xf: resid(full(xf)), x0[free],
-                            jac=lambda xf: jac(full(xf))[:, free], bounds=(-lim, lim),
+        sol = least_squares(lambda dx: resid(full(dx)), np.zeros(start.size),
+                            jac=lambda dx: jac(full(dx))[:, free],
+                            bounds=(-lim - start, lim - start),
                             method="trf", x_scale=0.01, max_nfev=MAX_EVALUATIONS)
         if sol.cost <= 0.5 * float(np.sum(resid(x0) ** 2)):
             return full(sol.x)
