@@ -107,6 +107,27 @@ def test_block_length_does_not_change_the_estimate():
     assert np.allclose(ma[-1].A, mb[-1].A, atol=1e-8)
 
 
+def test_a_young_model_starts_no_change_detection():
+    """An estimator fed a stationary record's first 1.6 s (absorbed, as the automatic band's low
+    group is when it starts) realizes an over-sized model from fewer windows than its 3.7 s
+    memory: its a-priori error on the next data rises, and that is no change (the old code
+    discounted the information once in every record here)."""
+    from sysid_node.scenarios.noise import add_output_noise
+    from sysid_node.scenarios.structures import modal_system
+
+    fs = 164.0
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        system = modal_system([2.7, 6.0, 11.0], [0.01, 0.02, 0.01], rng.normal(size=(3, 1)),
+                              rng.normal(size=(3, 3)), "displacement")
+        y = add_output_noise(simulate(system, rng.normal(size=(900, 1)), fs), 0.02, rng)
+        est = RecursiveDSRA(3, 0, fs=fs, block_rows=33, max_order=20,
+                            forgetting_factor=np.exp(-1 / (3.7 * fs)), realization_interval=16)
+        est.absorb(None, y[:260])
+        models = _feed(est, None, y[260:], block=16)
+        assert len(models) > 30 and est.change_count == 0
+
+
 def test_absorb_accumulates_without_realizing_and_the_next_sample_realizes():
     """absorb() realizes no model while it runs, the next update realizes at once (catching up,
     a new estimator fed the recent past), and that model is the one update() of the same

@@ -750,6 +750,14 @@ class RecursiveDSRA:
         self._sum_w2 = decay**2 * self._sum_w2 + w_sq
         self._k += n
 
+    def _start_holdoff(self) -> None:
+        """The first realization starts a hold-off of one memory, as a detected change does:
+        a model realized from fewer windows than its memory predicts fresh data worse than the
+        data it was fitted to, and that rise is no change (random suite draws 15, 25: the
+        young low group's information was discounted twice in its first second)."""
+        memory = int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
+        self._holdoff = max(self._holdoff, memory)
+
     def _discount(self, c: float) -> None:
         """Keep a fraction c of the old information (R >= Delta is preserved)."""
         self._info *= c
@@ -853,6 +861,8 @@ class RecursiveDSRA:
         if not (np.all(np.isfinite(mdl.A)) and np.all(np.isfinite(mdl.C))):
             self.realizations_skipped += 1
             return None
+        if self._theta1 is None:
+            self._start_holdoff()
         self._theta1 = proj.theta[: lay.l].copy()
         self.model = mdl
         self.realization_count += 1
