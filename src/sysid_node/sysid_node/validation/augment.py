@@ -55,6 +55,7 @@ class ModelSpec:
     block_rows: int = 20
     focus: str = "free_run"  # fit B, D on the free run ("free_run") or keep (A4) ("one_step")
     reduce_from: int = 0  # realize this higher order and keep its dominant modes (0: no)
+    decimate: int = 1  # realize A, C from the record decimated by this factor (1: no)
     order_method: str = "gap"
     band: tuple[float, float] | None = None
     extra_order: int = 0

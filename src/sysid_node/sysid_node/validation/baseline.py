@@ -10,6 +10,14 @@ input is not exogenous (closed loop), it is the one-step prediction error. The s
 (Diebold-Mariano, :func:`.residuals.compare_errors`) wins: the best linear level without the
 needless states that would absorb a missing effect.
 
+With an input (free run), every horizon is also realized from the fit samples decimated by 2,
+4 and 8 (:func:`.models.decimated_projection`; long segments only): A and C at the lower
+rate, the poles mapped back (z -> z^(1/k)) and B, D, x0 fitted at the full rate. A record
+sampled far above its modes has horizons that span a fraction of their periods, and an input
+that leaves most of the band empty (a low-pass input; white measurement noise on it) makes the
+full-rate realization ill-posed. Such a candidate is chosen only when every full-rate one at
+its order is significantly worse on the held-out tail.
+
 Candidates with an unstable A (no bounded free run) or an unstable predictor A - K C are
 discarded; the winner is refitted on the whole estimation part and, if that refit is unstable,
 the next candidate is taken. Only when every candidate is unstable are the unstable poles
@@ -27,7 +35,7 @@ from ..core.realization import kalman_gain
 from . import residuals as rs
 from .augment import ModelSpec
 from .data import ValidationData, ValidationError
-from .models import FittedModel, data_projection, dominant_modes, fit, shift
+from .models import FittedModel, decimated_projection, dominant_modes, fit, shift
 from .simulation import LinearDynamics, fit_output_error, simulate_linear, spectral_radius
 from .split import Split
 
@@ -39,6 +47,7 @@ MAX_ORDER = 40
 PATIENCE = 8  # stop scanning orders 8 past the best one
 P_WORSE = 0.01  # a candidate is "not worse" than the best unless p < 0.01 ...
 NEAR_BEST = 1.05  # ... and its error is within 5 % of the best one's
+MAX_DECIMATION = 8  # largest factor the candidates are realized at (see decimation_factors)
 
 
 @dataclass
@@ -54,6 +63,7 @@ class Candidate:
     free_err: np.ndarray | None = field(default=None, repr=False)
     one_err: np.ndarray | None = field(default=None, repr=False)
     reduce_from: int = 0  # realized at this order, its dominant modes kept (0: directly)
+    decimate: int = 1  # realized from the record decimated by this factor (1: full rate)
 
     def score(self, criterion: str) -> float:
         """Held-out NRMSE of the criterion's prediction (inf when it is unbounded)."""
@@ -69,6 +79,7 @@ class Candidate:
             "stable": self.stable,
             "reason": self.reason,
             "reduced_from_order": self.reduce_from or None,
+            "decimated_by": self.decimate,
         }
 
 
@@ -122,6 +133,16 @@ def horizons(
     return out
 
 
+def decimation_factors(data: ValidationData) -> list[int]:
+    """Decimation factors the candidates are also realized at: powers of two up to
+    :data:`MAX_DECIMATION`. At a high oversampling the horizons span a fraction of the modes'
+    periods and the noise above the band (a measured input's: errors in variables) enters the
+    realization. No band test chooses among them (a flat feed-through or a broadband input's
+    response holds :func:`..core.band.structure_band` at the full band): a factor that cuts a
+    mode off cannot fit the held-out part and is not chosen."""
+    return [2**j for j in range(1, MAX_DECIMATION.bit_length())]
+
+
 def _nrmse(y: np.ndarray, e: np.ndarray) -> float:
     den = np.linalg.norm(y - y.mean(axis=0), axis=0)
     return float(np.mean(np.linalg.norm(e, axis=0) / np.where(den > 0, den, np.nan)))
@@ -134,11 +155,13 @@ def _score_orders(
     orders: list[int],
     criterion: str,
     reduce: bool = False,
+    factor: int = 1,
 ) -> list[Candidate]:
-    """Realize every order from one projection of the fit samples, score on the held-out."""
+    """Realize every order from one projection of the fit samples (decimated by ``factor``),
+    score on the held-out."""
     n_sim = int(inner.val[-1]) + 1  # nothing after the last held-out sample is needed
     y, u = data.y[:n_sim], data.u[:n_sim]
-    dp = data_projection(y, u, data.fs, i, inner.est_segments)
+    dp = decimated_projection(y, u, data.fs, factor, i, inner.est_segments)
     out: list[Candidate] = []
     best, best_n = np.inf, 0
     sel = inner.val
@@ -151,15 +174,14 @@ def _score_orders(
         try:
             m = dp.model(n)
         except (ValidationError, np.linalg.LinAlgError, ValueError) as err:
-            out.append(Candidate(i, n, np.nan, np.nan, False, f"realization failed: {err}"))
+            why = f"realization failed: {err}"
+            out.append(Candidate(i, n, np.nan, np.nan, False, why, decimate=factor))
             continue
         if spectral_radius(m.A - m.K @ m.C) >= 1.0:
-            out.append(Candidate(i, n, np.nan, np.nan, False, "unstable predictor A - KC"))
+            out.append(
+                Candidate(i, n, np.nan, np.nan, False, "unstable predictor A - KC", decimate=factor)
+            )
             continue
-        with np.errstate(all="ignore"):
-            yhat = m.predict(y, u if data.n_inputs else None)
-        one_err = yv - yhat[sel]
-        one = _nrmse(yv, one_err)
         free, free_err, stable, reason = np.nan, None, True, ""
         if criterion == "free_run":
             if spectral_radius(m.A) >= 1.0:
@@ -169,17 +191,26 @@ def _score_orders(
                 oe = fit_output_error(dyn, y, u, inner.est)
                 free_err = yv - simulate_linear(dyn, oe.B, oe.D, u, oe.x0)[sel]
                 free = _nrmse(yv, free_err)
-        c = Candidate(i, n, free, one, stable and np.isfinite(one), reason, free_err, one_err)
+                if factor > 1:  # the realization's B, D are not those of the full rate
+                    m = replace(m, B=oe.B, D=oe.D)
+        with np.errstate(all="ignore"):
+            yhat = m.predict(y, u if data.n_inputs else None)
+        one_err = yv - yhat[sel]
+        one = _nrmse(yv, one_err)
+        ok = stable and np.isfinite(one)
+        c = Candidate(i, n, free, one, ok, reason, free_err, one_err, decimate=factor)
         out.append(c)
         s = free if criterion == "free_run" else one
         if np.isfinite(s) and s < best:
             best, best_n = s, n
         if reduce and criterion == "free_run":
-            out += _reduced(dp, y, u, inner, n, i)
+            out += _reduced(dp, y, u, inner, n, i, factor)
     return out
 
 
-def _reduced(dp, y: np.ndarray, u: np.ndarray, inner: Split, n: int, i: int) -> list[Candidate]:
+def _reduced(
+    dp, y: np.ndarray, u: np.ndarray, inner: Split, n: int, i: int, factor: int = 1
+) -> list[Candidate]:
     """The order-n candidate keeping the dominant modes of a realization of order 2 n."""
     big = min(2 * n, dp.max_order)
     if big <= n:
@@ -198,7 +229,8 @@ def _reduced(dp, y: np.ndarray, u: np.ndarray, inner: Split, n: int, i: int) -> 
         one_err = yv - m.predict(y, u)[sel]
     return [
         Candidate(
-            i, n, _nrmse(yv, free_err), _nrmse(yv, one_err), True, "", free_err, one_err, big
+            i, n, _nrmse(yv, free_err), _nrmse(yv, one_err), True, "", free_err, one_err, big,
+            factor,
         )
     ]
 
@@ -222,10 +254,15 @@ def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[C
         cmp = rs.compare_errors(getattr(c, key), getattr(best, key), scale)
         if cmp.p_value >= P_WORSE:  # best is not significantly better than c
             not_worse.append(c)
-    # parsimony: the lowest order, a direct realization before the dominant modes of a larger
-    # one (only chosen when the direct one is significantly worse)
+    # parsimony: the lowest order, a realization at the full rate before one at a decimated
+    # rate, a direct realization before the dominant modes of a larger one (each only chosen
+    # when the simpler one is significantly worse)
     first = min(
-        not_worse, key=lambda c: (c.order, c.reduce_from > 0, c.score(criterion), c.block_rows)
+        not_worse,
+        key=lambda c: (
+            c.order, c.decimate > 1, c.reduce_from > 0, c.score(criterion), c.block_rows,
+            c.decimate,
+        ),
     )
     rest = sorted((c for c in ok if c is not first), key=lambda c: c.score(criterion))
     return [first, *rest]
@@ -243,15 +280,36 @@ def rank_realizations(
     scored on their held-out tail: (candidates, ranking with the parsimonious choice first,
     fit samples, held-out samples)."""
     inner = split.inner(SELECTION_FRACTION)
-    l, m = data.n_outputs, data.n_inputs
     shortest = min(b - a for a, b in inner.est_segments)
     cands: list[Candidate] = []
-    for i in horizons(inner.n_est, m, l, order, block_rows, shortest):
-        top = min(l * (i - 1), MAX_ORDER)
-        orders = [order] if order is not None else list(range(1, top + 1))
-        cands += _score_orders(data, inner, i, orders, criterion, reduce=order is not None)
+    factors = [1] + (decimation_factors(data) if criterion == "free_run" else [])
+    for k in factors:
+        try:
+            cands += _score_horizons(data, inner, order, block_rows, criterion, k, shortest)
+        except ValidationError:
+            if k == 1:
+                raise  # decimated: the segments may be too short for it (none is realized)
     scale = np.std(data.y[inner.val], axis=0)
     return cands, _choose(cands, criterion, scale), inner.n_est, inner.n_val
+
+
+def _score_horizons(
+    data: ValidationData,
+    inner: Split,
+    order: int | None,
+    block_rows: int | None,
+    criterion: str,
+    factor: int,
+    shortest: int,
+) -> list[Candidate]:
+    """The candidates of every horizon realized from the fit samples decimated by ``factor``."""
+    l, m = data.n_outputs, data.n_inputs
+    cands: list[Candidate] = []
+    for i in horizons(inner.n_est // factor, m, l, order, block_rows, shortest // factor):
+        top = min(l * (i - 1), MAX_ORDER)
+        orders = [order] if order is not None else list(range(1, top + 1))
+        cands += _score_orders(data, inner, i, orders, criterion, order is not None, factor)
+    return cands
 
 
 def select_baseline(
@@ -270,14 +328,19 @@ def select_baseline(
     cands, ranked, n_fit, n_sel = rank_realizations(data, split, order, block_rows, criterion)
     spec = replace(spec, focus=criterion)
     for c in ranked:
-        sp = replace(spec, order=c.order, block_rows=c.block_rows, reduce_from=c.reduce_from)
+        sp = replace(
+            spec, order=c.order, block_rows=c.block_rows, reduce_from=c.reduce_from,
+            decimate=c.decimate,
+        )
         fm = fit(sp, data, split)
         if fm.stable(free_run=criterion == "free_run"):
             note = _note(c, ranked, criterion, order)
             return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
     # every candidate unstable on refit: reflect the unstable poles of the best one
     c = ranked[0] if ranked else _fallback(cands, order, spec)
-    fm = fit(replace(spec, order=c.order, block_rows=c.block_rows), data, split)
+    fm = fit(
+        replace(spec, order=c.order, block_rows=c.block_rows, decimate=c.decimate), data, split
+    )
     fm = stabilise(fm, data, split)
     note = f"every candidate was unstable; order {c.order}: unstable poles reflected, B, D refit"
     return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
@@ -295,6 +358,7 @@ def _note(c: Candidate, ranked: list[Candidate], criterion: str, order: int | No
     best = min(ranked, key=lambda x: x.score(criterion))
     how = "given" if order is not None else "chosen"
     red = f", dominant modes of a realization of order {c.reduce_from}" if c.reduce_from else ""
+    red += f", realized at fs / {c.decimate}" if c.decimate > 1 else ""
     return (
         f"order {c.order} ({how}{red}), block rows {c.block_rows}: held-out {what} NRMSE "
         f"{100 * c.score(criterion):.1f} % (best candidate {100 * best.score(criterion):.1f} % "

@@ -190,9 +190,11 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
     if not ranked:
         return None
     c = ranked[0]
-    if (c.block_rows, c.reduce_from) == (spec.block_rows, spec.reduce_from):
+    if (c.block_rows, c.reduce_from, c.decimate) == (
+        spec.block_rows, spec.reduce_from, spec.decimate
+    ):
         return None
-    return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from)
+    return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from, decimate=c.decimate)
 
 
 #: Effects whose trial re-fit is more than :func:`_refit` (same signature).

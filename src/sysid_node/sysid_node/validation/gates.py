@@ -40,10 +40,9 @@ from .data import ValidationData, ValidationError
 from .models import (
     TIME_SIGNAL,
     FittedModel,
-    dominant_modes,
     fit,
-    identify_dsra,
     lagged,
+    realize,
     shift,
 )
 from .simulation import (
@@ -682,7 +681,7 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
         return None
     top = int(max(MAX_DELAY_SAMPLES, int(peak_lag) + 2))
     key = ("input_delay_scan", spec.delay, spec.order, spec.extra_order, spec.block_rows,
-           spec.reduce_from, top)
+           spec.reduce_from, spec.decimate, top)
     if key in ctx.fitted:
         return ctx.fitted[key]
     est = split.est
@@ -717,11 +716,7 @@ def _scan_model(data: ValidationData, u: np.ndarray, spec, split: Split, order: 
     at ``order``, or (``spec.reduce_from``) the dominant modes of a higher-order realization;
     at the nominal order a realization can fail (unstable, noise modes) where the model's
     structure does not, and the scan would then compare a broken fit with the right delay."""
-    segs = split.est_segments
-    if spec.reduce_from > order:
-        big = identify_dsra(data.y, u, data.fs, spec.reduce_from, spec.block_rows, segs)
-        return dominant_modes(big, data.y, u, split.est, order)
-    return identify_dsra(data.y, u, data.fs, order, spec.block_rows, segs)
+    return realize(data.y, u, data.fs, order, spec, split)
 
 
 def scan_comparison(e0: np.ndarray, e1: np.ndarray) -> rs.ErrorComparison:

@@ -20,7 +20,7 @@ import itertools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import linalg
+from scipy import linalg, signal
 
 from ..core.batch import model_from_projection
 from ..core.hankel import Layout, window_rows
@@ -57,6 +57,11 @@ REFINE_EVALUATIONS = 30
 #: Refine the poles of linear structures by output error too (the subspace poles minimise a
 #: one-step criterion; a mode between the lines of a multisine can sit off by its bandwidth).
 REFINE_LINEAR = True
+#: A segment is decimated by k only when it holds this many samples per k: the anti-alias
+#: filter's impulse response holds 99.9 % of its energy within ~16 k samples, so filtered
+#: forward and backward its start-up reaches at most a quarter of such a segment (the short
+#: blocks of an interleaved split are realized at the full rate only).
+DECIMATION_MIN_SAMPLES = 128
 
 
 def _shift_int(u: np.ndarray, d: int) -> np.ndarray:
@@ -143,6 +148,89 @@ def data_projection(
     return DataProjection(proj, su, sy, fs, block_rows)
 
 
+@dataclass
+class DecimatedProjection:
+    """A :class:`DataProjection` of the record decimated by ``factor``: its realizations are
+    returned at the full rate (poles z -> z^(1/factor), see :func:`to_full_rate`)."""
+
+    inner: DataProjection
+    factor: int
+    fs: float  # the full rate [Hz]
+
+    @property
+    def max_order(self) -> int:
+        return self.inner.max_order
+
+    @property
+    def block_rows(self) -> int:
+        return self.inner.block_rows
+
+    def model(self, order: int) -> IdentifiedModel:
+        """The order-``order`` model at the full rate; B and D are zero (fit them by output
+        error at the full rate, :func:`.simulation.fit_output_error`)."""
+        return to_full_rate(self.inner.model(order), self.factor, self.fs)
+
+
+def decimate_segments(
+    x: np.ndarray, factor: int, segments: list[tuple[int, int]]
+) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Each segment of ``x`` low-pass filtered (zero phase, Chebyshev I of order 8 at 0.8 of
+    the new Nyquist, :func:`scipy.signal.decimate`) and decimated by ``factor``, separately:
+    no held-out sample leaks into a segment through the filter. Returns the concatenated
+    pieces and their segments in that array (segments too short to filter are dropped)."""
+    pieces, segs, start = [], [], 0
+    for a, b in segments:
+        if b - a < DECIMATION_MIN_SAMPLES * factor:
+            continue
+        z = signal.decimate(x[a:b], factor, axis=0, zero_phase=True)
+        pieces.append(z)
+        segs.append((start, start + z.shape[0]))
+        start += z.shape[0]
+    if not pieces:
+        raise ValidationError(f"no estimation segment long enough to decimate by {factor}")
+    return np.concatenate(pieces), segs
+
+
+def decimated_projection(
+    y: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    factor: int,
+    block_rows: int,
+    segments: list[tuple[int, int]] | None = None,
+) -> DataProjection | DecimatedProjection:
+    """:func:`data_projection` of ``segments`` decimated by ``factor`` (1: the record itself):
+    a Hankel window of ``block_rows`` spans ``factor`` times as long, and the noise above the
+    band (white input measurement noise, errors in variables) is filtered out."""
+    if factor <= 1:
+        return data_projection(y, u, fs, block_rows, segments)
+    segs = segments or [(0, y.shape[0])]
+    yd, dsegs = decimate_segments(y, factor, segs)
+    ud = decimate_segments(u, factor, segs)[0] if u.shape[1] else np.zeros((yd.shape[0], 0))
+    return DecimatedProjection(data_projection(yd, ud, fs / factor, block_rows, dsegs), factor, fs)
+
+
+def to_full_rate(m: IdentifiedModel, factor: int, fs: float) -> IdentifiedModel:
+    """A model realized at ``fs / factor`` mapped to ``fs``: A in its real modal form with each
+    pole z -> z^(1/factor) (principal branch: right for a band below the decimated Nyquist;
+    a negative real pole keeps its decay, |z|^(1/factor)), C in the same basis, the noise
+    covariances per sample (process Q / factor, measurement R x factor: white noise of the
+    same density) and their Kalman gain; B and D zero."""
+    t, eig, kinds = real_modal_basis(m.A)
+    mapped = np.where(
+        np.abs(eig.imag) > 0, np.exp(np.log(eig.astype(complex)) / factor),
+        np.abs(eig) ** (1.0 / factor),
+    )
+    a, c = block_matrix(mapped, kinds), m.C @ t
+    ti = np.linalg.inv(t)
+    q, s, r = ti @ m.Q @ ti.T / factor, ti @ m.S, m.R * factor
+    k, re = kalman_gain(a, c, q, s, r)
+    return replace(
+        m, A=a, B=np.zeros_like(m.B), C=c, D=np.zeros_like(m.D), K=k, Q=q, S=s, R=r,
+        innovation_covariance=re, fs=fs, modes=modes_of(a, fs),
+    )
+
+
 def identify_dsra(
     y: np.ndarray,
     u: np.ndarray,
@@ -150,11 +238,13 @@ def identify_dsra(
     order: int,
     block_rows: int,
     segments: list[tuple[int, int]] | None = None,
+    decimate: int = 1,
 ) -> IdentifiedModel:
     """Batch DSRA of a fixed order on ``segments`` of the record (ValidationError with a
-    one-line reason on failure)."""
+    one-line reason on failure); ``decimate`` > 1: realized from the segments decimated by it
+    and mapped to the full rate (:func:`to_full_rate`; B, D zero)."""
     try:
-        return data_projection(y, u, fs, block_rows, segments).model(order)
+        return decimated_projection(y, u, fs, decimate, block_rows, segments).model(order)
     except (np.linalg.LinAlgError, ValueError) as err:
         if isinstance(err, ValidationError):
             raise
@@ -514,12 +604,27 @@ def _fit_core(
         m = fm.model
         row = cubic_coordinate(m.A, m.C[spec.cubic_channel], data.fs, spec.cubic_integrals)
         fm.cubic_c = row / fm.cubic_scale
-    elif spec.reduce_from > order and data.n_inputs:
-        big = identify_dsra(yc, ue, data.fs, spec.reduce_from, br, segs)
-        fm.model = dominant_modes(big, yc, ue, split.est, order)
     else:
-        fm.model = identify_dsra(yc, ue, data.fs, order, br, segs)
+        fm.model = realize(yc, ue, data.fs, order, spec, split)
     fm.order = fm.model.order
+
+
+def realize(
+    y: np.ndarray, u: np.ndarray, fs: float, order: int, spec: ModelSpec, split: Split
+) -> IdentifiedModel:
+    """The linear dynamics of ``spec`` on the estimation segments: directly at ``order`` or
+    (``spec.reduce_from``, with an input) the dominant modes of a higher-order realization;
+    from the record decimated by ``spec.decimate``, B and D then by output error at the full
+    rate."""
+    segs, br, k = split.est_segments, spec.block_rows, spec.decimate
+    if spec.reduce_from > order and u.shape[1]:
+        big = identify_dsra(y, u, fs, spec.reduce_from, br, segs, k)
+        return dominant_modes(big, y, u, split.est, order)
+    m = identify_dsra(y, u, fs, order, br, segs, k)
+    if k > 1 and u.shape[1] and spectral_radius(m.A) < 1.0:
+        oe = fit_output_error(LinearDynamics.build(m.A, m.C, y.shape[0]), y, u, split.est)
+        m = replace(m, B=oe.B, D=oe.D)
+    return m
 
 
 def _bare(spec: ModelSpec) -> ModelSpec:
