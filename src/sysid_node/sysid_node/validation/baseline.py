@@ -15,8 +15,8 @@ With an input (free run), every horizon is also realized from the fit samples de
 rate, the poles mapped back (z -> z^(1/k)) and B, D, x0 fitted at the full rate. A record
 sampled far above its modes has horizons that span a fraction of their periods, and an input
 that leaves most of the band empty (a low-pass input; white measurement noise on it) makes the
-full-rate realization ill-posed. Such a candidate is chosen only when every full-rate one at
-its order is significantly worse on the held-out tail.
+full-rate realization ill-posed. Such a candidate is chosen only when the full-rate choice is
+clearly worse on the held-out tail than the best of them (beyond 5 % and significantly).
 
 Candidates with an unstable A (no bounded free run) or an unstable predictor A - K C are
 discarded; the winner is refitted on the whole estimation part and, if that refit is unstable,
@@ -236,36 +236,46 @@ def _reduced(
 
 
 def _choose(cands: list[Candidate], criterion: str, scale: np.ndarray) -> list[Candidate]:
-    """Candidates ranked: the parsimonious choice first (lowest order, then a direct
-    realization, among those not significantly worse than the best), then the others by
-    score."""
+    """Candidates ranked: the parsimonious choice first, then the others by score. The choice
+    is made among the full-rate candidates (:func:`_parsimonious`); among the decimated ones
+    only when their best is clearly better than it: beyond :data:`NEAR_BEST` and
+    significantly (the full-rate choice failed; a decimated candidate never moves the bar the
+    full-rate ones are chosen by)."""
     ok = [c for c in cands if np.isfinite(c.score(criterion))]
     if not ok:
         return []
-    best = min(ok, key=lambda c: c.score(criterion))
-    key = "free_err" if criterion == "free_run" else "one_err"
-    not_worse = []
-    for c in ok:
-        if c is best:
-            not_worse.append(c)
-            continue
-        if c.score(criterion) > NEAR_BEST * best.score(criterion):
-            continue
-        cmp = rs.compare_errors(getattr(c, key), getattr(best, key), scale)
-        if cmp.p_value >= P_WORSE:  # best is not significantly better than c
-            not_worse.append(c)
-    # parsimony: the lowest order, a realization at the full rate before one at a decimated
-    # rate, a direct realization before the dominant modes of a larger one (each only chosen
-    # when the simpler one is significantly worse)
-    first = min(
-        not_worse,
-        key=lambda c: (
-            c.order, c.decimate > 1, c.reduce_from > 0, c.score(criterion), c.block_rows,
-            c.decimate,
-        ),
-    )
+    full = [c for c in ok if c.decimate == 1]
+    low = [c for c in ok if c.decimate > 1]
+    first = _parsimonious(full, criterion, scale) if full else None
+    if low:
+        best = min(low, key=lambda c: c.score(criterion))
+        if first is None or _worse(first, best, criterion, scale, clearly=True):
+            first = _parsimonious(low, criterion, scale)
     rest = sorted((c for c in ok if c is not first), key=lambda c: c.score(criterion))
     return [first, *rest]
+
+
+def _worse(
+    c: Candidate, best: Candidate, criterion: str, scale: np.ndarray, clearly: bool = False
+) -> bool:
+    """``c``'s held-out error is beyond NEAR_BEST x ``best``'s or significantly larger
+    (``clearly``: both)."""
+    far = c.score(criterion) > NEAR_BEST * best.score(criterion)
+    if far != clearly:
+        return far
+    key = "free_err" if criterion == "free_run" else "one_err"
+    return rs.compare_errors(getattr(c, key), getattr(best, key), scale).p_value < P_WORSE
+
+
+def _parsimonious(ok: list[Candidate], criterion: str, scale: np.ndarray) -> Candidate:
+    """The lowest order, then a direct realization before the dominant modes of a larger one,
+    among the candidates not worse than the best (:func:`_worse`)."""
+    best = min(ok, key=lambda c: c.score(criterion))
+    not_worse = [c for c in ok if c is best or not _worse(c, best, criterion, scale)]
+    return min(
+        not_worse,
+        key=lambda c: (c.order, c.reduce_from > 0, c.score(criterion), c.block_rows, c.decimate),
+    )
 
 
 def rank_realizations(
