@@ -65,7 +65,7 @@ def test_the_delay_trial_realizes_the_delayed_input_as_the_baseline_would(monkey
     spec = ctx.current.spec
     alt = D._delayed_realization(ctx, spec, 2.0)
     assert alt is not None and alt.block_rows != spec.block_rows
-    fm, _ = D._delay_refit(ctx, spec, {"samples": 2.0})
+    fm, _ = D._delay_refit(ctx, spec, "input_delay", {"samples": 2.0})
     freqs = sorted(md.frequency_hz for md in fm.modes())
     assert len(freqs) == 3 and freqs[0] == pytest.approx(1.143, rel=0.02)
 
