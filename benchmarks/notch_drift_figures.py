@@ -181,6 +181,11 @@ def figures(scn, res, params: Path, static) -> dict:
         "holding_share": float(np.mean(state == 1)),
         "claimed_over_delivered": int(np.sum(claimed[ok] > pr[ok] + 0.5)),
         "claimed_messages": int(ok.sum()),
+        # where the claim failed, for the reader of a failed run: data time [s], the estimate's
+        # age [s], the bank's state (0 tracking, 1 holding), claimed and delivered [dB]
+        "over_delivered_at": [[round(float(v), 2) for v in r] for r in zip(
+            t[ok], age[ok], state[ok], claimed[ok], pr[ok], strict=True)
+            if r[3] > r[4] + 0.5],
         # the probability the claim's region covers the true mode (the guarantee's confidence)
         "claim_confidence": R.region_confidence(cfg["sigma_k"], cfg["damping_sigma_k"]),
         "lag_median_deg": float(np.median(lag)), "oracle_lag_median_deg": float(np.median(olag)),

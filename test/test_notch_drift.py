@@ -42,6 +42,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from scipy.stats import binom
 
 pytestmark = [pytest.mark.dds, pytest.mark.slow]
 
@@ -80,10 +81,12 @@ def _common(fig: dict, share: float) -> None:
     assert fig["pr_share"] >= share, fig
     assert fig["rigid_max_abs_db"] <= 1.0, fig
     assert fig["fallback_while_tracked_fresh"] == 0, fig
-    # the guarantee's confidence, with a sampling allowance of two messages (messages in a row
-    # share one estimate, so their failures are not independent)
-    allowed = (1.0 - fig["claim_confidence"]) * fig["claimed_messages"] + 2
-    assert fig["claimed_over_delivered"] <= allowed, (allowed, fig)
+    # the guarantee's confidence: a claim that holds with it fails in a binomial number of
+    # messages at most; the test rejects it at the 1 % level (messages in a row share one
+    # estimate, so their failures cluster and the count spreads wider still: the bound is on
+    # the strict side). The failures, if any, are listed with their estimate's age and state.
+    allowed = binom.ppf(0.99, fig["claimed_messages"], 1.0 - fig["claim_confidence"])
+    assert fig["claimed_over_delivered"] <= allowed, (allowed, fig["over_delivered_at"], fig)
 
 
 def test_quiet_keeps_the_peak_15_db_down_in_95_percent(quiet):

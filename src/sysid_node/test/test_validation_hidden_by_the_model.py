@@ -60,7 +60,7 @@ def test_the_delay_trial_realizes_the_delayed_input_as_the_baseline_would(monkey
     only (a realization at fs / 4 spans the close pair from the start): the baseline's horizon
     (10 block rows, chosen for the undelayed input) realizes one of the close pair only, and so
     does the delay's re-fit with it; the horizon chosen for the delayed input finds both."""
-    monkeypatch.setattr(B, "decimation_factors", lambda data: [])
+    monkeypatch.setattr(B, "decimation_factors", lambda: [])
     sc, ctx = _context("input_delay", 1103009, "coloured")
     spec = ctx.current.spec
     alt = D._delayed_realization(ctx, spec, 2.0)

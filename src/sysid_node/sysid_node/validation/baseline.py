@@ -133,7 +133,7 @@ def horizons(
     return out
 
 
-def decimation_factors(data: ValidationData) -> list[int]:
+def decimation_factors() -> list[int]:
     """Decimation factors the candidates are also realized at: powers of two up to
     :data:`MAX_DECIMATION`. At a high oversampling the horizons span a fraction of the modes'
     periods and the noise above the band (a measured input's: errors in variables) enters the
@@ -292,7 +292,7 @@ def rank_realizations(
     inner = split.inner(SELECTION_FRACTION)
     shortest = min(b - a for a, b in inner.est_segments)
     cands: list[Candidate] = []
-    factors = [1] + (decimation_factors(data) if criterion == "free_run" else [])
+    factors = [1] + (decimation_factors() if criterion == "free_run" else [])
     for k in factors:
         try:
             cands += _score_horizons(data, inner, order, block_rows, criterion, k, shortest)
