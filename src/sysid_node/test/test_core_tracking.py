@@ -254,3 +254,33 @@ def test_a_weak_pole_under_a_strong_neighbours_skirt_is_not_tracked():
     for k in range(20):
         out = tr.update([c(113.5, 0.01, 20.0), c(120.4, 0.0026, 100.0)], 0.1 * k)
     assert [t.status for t in out] == ["tracked", "tracked"]
+
+
+def test_a_jumped_modes_old_pole_is_not_tracked_once_the_new_one_outgrows_it():
+    """After a jump (5.2 -> 5.9 Hz, beyond the match gate) the estimator's memory still holds the
+    old data: the realizations keep a pole at 5.2 Hz whose contribution fades while the new one
+    grows (random suite draw 39: the old track tracked 10 s after the change). Once the new track
+    is at least as strong and the old one below half its peak, the old one is tentative; the
+    unchanged 3.7 Hz mode, and the old one before the newcomer outgrows it, stay tracked."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(40):
+        out = tr.update([_c(3.7, 1.0), _c(5.2, 1.0)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 2
+    statuses = []
+    for k in range(40, 100):  # old: 1 -> 0.05, new: 0.1 -> 1 (crossing at k = 70)
+        a = (k - 40) / 60
+        out = tr.update([_c(3.7, 1.0), _c(5.2, 1.0 - 0.95 * a), _c(5.9, 0.1 + 0.9 * a)], 0.05 * k)
+        statuses.append({round(t.frequency_hz, 1): t.status for t in out})
+    assert statuses[20][5.2] == "tracked"  # fading, not yet outgrown
+    assert statuses[-1] == {3.7: "tracked", 5.2: "tentative", 5.9: "tracked"}
+
+
+def test_a_newer_stronger_neighbour_does_not_demote_a_steady_mode():
+    """Two real modes 10 % apart, the stronger found later: the older one's contribution has not
+    faded (it is not a jump's memory), so both stay tracked."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(40):
+        tr.update([_c(5.2, 0.5)], 0.05 * k)
+    for k in range(40, 100):
+        out = tr.update([_c(5.2, 0.5 * (1 + 0.3 * (-1) ** k)), _c(5.7, 2.0)], 0.05 * k)
+    assert [t.status for t in out] == ["tracked"] * 2

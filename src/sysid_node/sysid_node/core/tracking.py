@@ -70,6 +70,16 @@ PRESENCE_MIN = 0.5
 STRONG_CONTRIBUTION = 1.0
 #: Presence below which an established track is no longer tracked (half PRESENCE_MIN).
 PRESENCE_FLOOR = 0.5 * PRESENCE_MIN
+#: A jump seen by the tracker (:meth:`ModeTracker._superseded`): a newer confirmed track within
+#: this many frequency gates of an established one (a stiffness or mass change moves a mode by
+#: a few to some 20 %, beyond the match gate) ...
+SUPERSEDE_GATES = 5.0
+#: ... supersedes it once the old one's contribution has fallen below this share of what it was
+#: when the newcomer appeared (its data are leaving the estimator's memory) and below the
+#: newcomer's.
+SUPERSEDE_FADE = 0.5
+#: Updates of contribution history kept per track for that comparison.
+RANK_LOG = 400
 
 
 @dataclass
@@ -105,6 +115,13 @@ class TrackedMode:
     established: bool = False
     #: data time [s] its presence window began (creation, or re-acquisition after lost)
     since: float = float("nan")
+    #: (data time [s], median contribution) at its hits with full ``ranks`` (``_superseded``)
+    rank_log: deque = field(default_factory=lambda: deque(maxlen=RANK_LOG), repr=False)
+
+    def rank_at(self, t: float) -> float:
+        """Median contribution at its last logged hit at or before ``t`` (NaN if none)."""
+        before = [r for s, r in self.rank_log if s <= t]
+        return before[-1] if before else float("nan")
 
     @property
     def rank(self) -> float:
@@ -258,6 +275,8 @@ class ModeTracker:
                 tr.status = "tracked" if tr.confirmed and self._present(tr) else "tentative"
             keep.append(tr)
         self.tracks = keep
+        for tr in self._superseded():
+            tr.status = "tentative"
         for tr in self._sidebands():
             tr.status = "tentative"
         self._rank()
@@ -322,6 +341,34 @@ class ModeTracker:
             if np.isfinite(kd) and kd > top:
                 best, top = d, kd
         return best
+
+    def _superseded(self) -> list[TrackedMode]:
+        """Tracked modes a jump has replaced: after an abrupt change the estimator's memory still
+        holds the old data, so the realizations keep a pole at a moved mode's old frequency
+        (matched, hence present) for a few memory lengths while the new one grows beside it.
+        The tracker sees the jump: a track confirmed while an established one was tracked,
+        within SUPERSEDE_GATES frequency gates of it and of a like shape (MAC gate), is at least
+        as strong as it now, while the old one's contribution has fallen below SUPERSEDE_FADE
+        of what it was when the newcomer appeared. The old track is tentative (status only: it
+        lives on, and is tracked again if its contribution recovers); a held (unexcited) track
+        is not judged."""
+        live = [tr for tr in self.tracks if tr.status != "lost" and tr.confirmed]
+        out = []
+        for old in live:
+            if old.status != "tracked" or not old.established or old.unexcited:
+                continue
+            f0 = max(old.reference[0], 1e-12)
+            for new in live:
+                if (new is old or new.first_seen < old.since + self.lost_timeout_s
+                        or new.rank < old.rank
+                        or abs(new.reference[0] - f0) > SUPERSEDE_GATES * self.frequency_gate * f0
+                        or not old.rank < SUPERSEDE_FADE * old.rank_at(new.first_seen)):
+                    continue
+                sn, so = new.mode.shape, old.mode.shape
+                if np.size(sn) <= 1 or np.size(sn) != np.size(so) or mac(sn, so) >= self.mac_gate:
+                    out.append(old)
+                    break
+        return out
 
     def _sidebands(self) -> list[TrackedMode]:
         """Tracked modes whose spectral peak does not rise above the skirt of a stronger tracked
@@ -399,6 +446,8 @@ class ModeTracker:
         tr.streak += 1
         tr.last_seen = t
         tr.ranks.append(md.rank_key)
+        if len(tr.ranks) == tr.ranks.maxlen:
+            tr.rank_log.append((t, tr.rank))
         if self.report_hits > 1:  # robust to a stray realization (a burst in the data)
             h = np.array(list(tr.history)[-self.report_hits :])
             f, z = float(np.median(h[:, 0])), float(np.median(h[:, 1]))
