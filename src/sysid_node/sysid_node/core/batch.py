@@ -106,6 +106,7 @@ def model_from_projection(
     check: list[int] | None = None,
     frequency_gate: float | None = 0.05,
     recent_input_cov: np.ndarray | None = None,
+    reflect_unstable: bool = False,
 ) -> IdentifiedModel:
     """Realize order ``order`` from a projection of scaled data and undo the channel scaling.
 
@@ -114,7 +115,8 @@ def model_from_projection(
     tracking ``frequency_gate``, None: no determined-frequency test); the stable modes then
     come first when ``max_modes`` cuts. ``recent_input_cov``: the covariance of the recent
     windows' inputs, for the test that a pole pair is not the input's own
-    (:func:`~sysid_node.core.spurious.input_own`; None: not run).
+    (:func:`~sysid_node.core.spurious.input_own`; None: not run). ``reflect_unstable``: see
+    :func:`~sysid_node.core.modal.extract_modes`.
     """
     check = [c for c in (check or []) if 1 <= c <= max_order(proj) and c != order]
     basis = ShiftBasis(proj, max([order, *check]))
@@ -136,6 +138,7 @@ def model_from_projection(
         noise_cov=sy_m @ rz.R @ sy_m,
         band=band,
         damping_bounds=damping_bounds,
+        reflect_unstable=reflect_unstable,
     )
     if check:
         freqs = [pole_frequencies(p, fs) for p in shift_poles(basis, check)]

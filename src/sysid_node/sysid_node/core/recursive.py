@@ -854,6 +854,7 @@ class RecursiveDSRA:
                 check=check_orders(n, lay.l * (lay.i - 1)) if self.stabilize else None,
                 frequency_gate=None,
                 recent_input_cov=self._u_recent if self._u_cols.size else None,
+                reflect_unstable=True,
             )
         except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
             self.realizations_skipped += 1
