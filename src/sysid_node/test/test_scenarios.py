@@ -8,12 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import signal
+from sysid_node.core.controller import DiscreteController
 from sysid_node.core.lti import discretize, simulate
 from sysid_node.scenarios import draw_clean, draw_hidden_effect, draw_modal_scenario, drifting_mode
 from sysid_node.scenarios import excitations as X
 from sysid_node.scenarios import faults as F
 from sysid_node.scenarios.bags import HIDDEN_SCENARIOS, HIDDEN_SEEDS, hidden_effect
-from sysid_node.scenarios.closedloop import DiscreteController, simulate_closed_loop
+from sysid_node.scenarios.closedloop import closed_loop_matrices, simulate_closed_loop
 from sysid_node.scenarios.effects import EFFECTS, add_mode, mode_blocks, simulate_cubic_stiffness
 from sysid_node.scenarios.structures import (
     ModalStructure,
@@ -76,24 +77,34 @@ def test_scheduled_mode_follows_the_schedule():
     np.testing.assert_allclose(y, simulate(system_at(60.0), u, 100.0), atol=1e-12)
 
 
-def test_closed_loop_matches_a_per_sample_loop():
-    fs, lag = 100.0, 2
+@pytest.mark.parametrize("lag", [0, 2])
+def test_closed_loop_matches_a_per_sample_loop(lag):
+    """u = r + C xc + D e with e = y delayed ``lag`` samples (0: the controller reads y_k and
+    acts from k + 1 on, D = 0)."""
+    fs = 100.0
     plant = mode_blocks([(2.0, 0.02), (4.0, 0.05)])
-    ctrl = DiscreteController(np.array([[0.9]]), np.array([[1.0]]), np.array([[0.5]]),
-                              np.array([[1.5]]))
+    ctrl = DiscreteController(np.array([[0.9]]), np.array([[1.0]]), np.array([[-0.5]]),
+                              np.array([[-1.5 if lag else 0.0]]), fs)
     rng = np.random.default_rng(2)
     r, w, v = (rng.standard_normal((500, 1)) * s for s in (1.0, 0.5, 0.01))
-    y, u = simulate_closed_loop(plant, ctrl, r, fs, w=w, v=v, delay=lag)
+    y, u = simulate_closed_loop(plant, ctrl, r, w=w, v=v, delay=lag)
     ad, bd, cd, dd = discretize(plant, fs)
     x, xc, past = np.zeros(4), np.zeros(1), [np.zeros(1)] * lag
     y_ref, u_ref = np.empty_like(y), np.empty_like(u)
     for k in range(500):
-        e = past[-1]
-        u_ref[k] = r[k] - (ctrl.C @ xc + ctrl.D @ e)
+        e = past[-1] if lag else np.zeros(1)
+        u_ref[k] = r[k] + ctrl.C @ xc + ctrl.D @ e
         y_ref[k] = cd @ x + dd @ (u_ref[k] + w[k]) + v[k]
+        e = e if lag else y_ref[k]
         x, xc = ad @ x + bd @ (u_ref[k] + w[k]), ctrl.A @ xc + ctrl.B @ e
         past = [y_ref[k].copy(), *past[:-1]]
     assert np.allclose(y, y_ref, atol=1e-9) and np.allclose(u, u_ref, atol=1e-9)
+
+
+def test_a_direct_feedthrough_controller_needs_a_delay():
+    ctrl = DiscreteController.static(-1.0, 100.0)
+    with pytest.raises(ValueError, match="strictly proper"):
+        closed_loop_matrices(mode_blocks([(2.0, 0.02)]), ctrl, delay=0)
 
 
 def test_cubic_stiffness_converges_and_vanishes_without_the_spring():

@@ -53,6 +53,13 @@ class DiscreteController:
         object.__setattr__(self, "D", d)
         object.__setattr__(self, "fs", float(self.fs))
 
+    @classmethod
+    def static(cls, gain, fs: float) -> DiscreteController:
+        """A memoryless controller u_c = ``gain`` y (scalar or (actuators, sensors) matrix);
+        negative feedback u = r - g y is ``static(-g, fs)``."""
+        d = np.atleast_2d(np.asarray(gain, dtype=float))
+        return cls(np.zeros((0, 0)), np.zeros((0, d.shape[1])), np.zeros((d.shape[0], 0)), d, fs)
+
     @property
     def order(self) -> int:
         return self.A.shape[0]

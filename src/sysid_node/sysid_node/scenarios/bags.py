@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.controller import DiscreteController
 from ..core.lti import simulate
 from . import effects as E
-from .closedloop import DiscreteController, simulate_closed_loop
+from .closedloop import simulate_closed_loop
 from .excitations import white
 from .noise import add_output_noise
 from .paper import (
@@ -369,7 +370,7 @@ def hidden_effect(name: str, seed: int = 0) -> HiddenEffectRecord:
         # disturbance, the recorded /excitation is the actuator command u = r - g y(t-1)
         gain = 3.0
         v_noise = HIDDEN_NOISE * 0.2 * white(n, 1, rng)  # about 2 % of the closed-loop output
-        y, u = simulate_closed_loop(sys_a, DiscreteController.static(gain), 0.2 * u, fs,
+        y, u = simulate_closed_loop(sys_a, DiscreteController.static(-gain, fs), 0.2 * u,
                                     w=5.0 * w / HIDDEN_PROCESS_NOISE, v=v_noise, delay=1)
         truth.update(lag=1, gain=gain)
     return HiddenEffectRecord(name, t, y, u, signals, truth)

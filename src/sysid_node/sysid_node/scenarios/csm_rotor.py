@@ -26,7 +26,6 @@ import numpy as np
 from ..core.closed_loop import ClosedLoopData
 from ..core.controller import DiscreteController
 from ..core.lti import ContinuousSystem
-from .closedloop import DiscreteController as LoopController
 from .closedloop import closed_loop_matrices, simulate_closed_loop
 from .paper import cobra_stick_model
 from .timevarying import simulate_scheduled
@@ -58,15 +57,6 @@ def csm_at(rotor_speed_hz: float, coupling: float = CSM_COUPLING,
     return ContinuousSystem(a, base.B, base.C, base.D)
 
 
-def loop_controller(k: DiscreteController) -> LoopController:
-    """The same controller in the simulator's form (u = r - K' e, e = y delayed one sample):
-    for D = 0, x_k = A x_{k-1} + B y_{k-1}, so with x'_k = x_{k-1}: A' = A, B' = B,
-    C' = -C A, D' = -C B."""
-    if k.D.any():
-        raise ValueError("the experiment needs a strictly proper controller (D = 0)")
-    return LoopController(k.A, k.B, -k.C @ k.A, -k.C @ k.B)
-
-
 def closed_loop_experiment(
     plant: ContinuousSystem,
     controller: DiscreteController | None,
@@ -82,15 +72,16 @@ def closed_loop_experiment(
     output's std; ``controller=None`` is the open-loop experiment. Returns r, u, y and the
     true closed loop's spectral radius."""
     m, l = plant.n_inputs, plant.n_outputs
-    k = (LoopController.static(np.zeros((m, l))) if controller is None
-         else loop_controller(controller))
+    k = DiscreteController.static(np.zeros((m, l)), fs) if controller is None else controller
+    if k.fs != fs:
+        raise ValueError(f"the controller runs at {k.fs} Hz, the experiment at {fs} Hz")
     n = int(round(duration_s * fs))
     r = reference_std * rng.standard_normal((n, m))
     w = disturbance_std * reference_std * rng.standard_normal((n, m))
-    clean, _ = simulate_closed_loop(plant, k, r, fs, w=w)
+    clean, _ = simulate_closed_loop(plant, k, r, w=w, delay=0)
     v = noise_fraction * np.std(clean, axis=0) * rng.standard_normal((n, l))
-    y, u = simulate_closed_loop(plant, k, r, fs, w=w, v=v)
-    a = closed_loop_matrices(plant, k, fs)[0]
+    y, u = simulate_closed_loop(plant, k, r, w=w, v=v, delay=0)
+    a = closed_loop_matrices(plant, k, delay=0)[0]
     return ClosedLoopData(r, u, y, fs, float(np.max(np.abs(np.linalg.eigvals(a)))))
 
 

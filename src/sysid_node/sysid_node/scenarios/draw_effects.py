@@ -20,9 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.controller import DiscreteController
 from ..core.lti import simulate
 from . import effects as E
-from .closedloop import DiscreteController, loop_is_stable, simulate_closed_loop
+from .closedloop import loop_is_stable, simulate_closed_loop
 from .draw import _log_uniform, draw_rate, draw_structure
 from .excitations import KINDS, excitation
 from .structures import ModalStructure, scheduled_mode
@@ -303,21 +304,21 @@ def draw_hidden_effect(
         system = st.system()
         w = b.w / max(np.std(b.w), 1e-300) * rng.uniform(1.0, 5.0)  # strong disturbance
         v = b.noise_std * rng.standard_normal((len(t), st.n_outputs))
+
+        def negative(g: float) -> DiscreteController:  # u = r - g (y_1 + ... + y_l)(t - lag)
+            return DiscreteController.static(np.full((1, st.n_outputs), -g), fs)
+
         lo, hi = 0.0, 1.0
-        while loop_is_stable(system, DiscreteController.static(np.full((1, st.n_outputs), hi)),
-                             fs, lag) and hi < 1e9:
+        while loop_is_stable(system, negative(hi), lag) and hi < 1e9:
             lo, hi = hi, hi * 4
         for _ in range(30):  # the largest stable gain
             mid = 0.5 * (lo + hi)
-            ok = loop_is_stable(system, DiscreteController.static(np.full((1, st.n_outputs),
-                                                                          mid)), fs, lag)
-            lo, hi = (mid, hi) if ok else (lo, mid)
+            lo, hi = (mid, hi) if loop_is_stable(system, negative(mid), lag) else (lo, mid)
         g_max = lo
         y_open = simulate(system, b.u + w, fs) + v
 
         def size_of(g: float):
-            yc, uc = simulate_closed_loop(system, DiscreteController.static(
-                np.full((1, st.n_outputs), g)), b.u, fs, w=w, v=v, delay=lag)
+            yc, uc = simulate_closed_loop(system, negative(g), b.u, w=w, v=v, delay=lag)
             return b.size(yc - y_open), (yc, uc)
 
         gain, reached, (y, u) = _secant(size_of, 0.2 * g_max, target, 1e-6 * g_max, 0.7 * g_max,
