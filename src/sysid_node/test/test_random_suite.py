@@ -176,3 +176,19 @@ def test_one_output_output_only_neighbouring_low_modes_stay_apart():
     res = score(scn, run_pipeline(scn), ONE_OUTPUT_SEED)
     assert res.found_by_3s and res.settled_share >= 0.9, res
     assert res.false_max <= 1, res
+
+
+#: Seed 25: output-only from one output, 145 Hz, seven modes; the 0.2 %-damped 43.83 Hz one is
+#: within 0.5 % in 69 of the first 83 realizations but below the overfit level (spurious test 3)
+#: in 55 of them, and was tracked only at 3.6 s (found by 3 s: False). Test 3 is lifted for
+#: pole pairs that persist while the estimator's memory fills (core.spurious.Persistence).
+PERSIST_SEED = 25
+
+
+@pytest.mark.slow
+def test_a_persistent_mode_below_the_overfit_level_is_found_by_3_s():
+    scn = draw_modal_scenario(np.random.default_rng(PERSIST_SEED), duration_s=DURATION_S)
+    assert scn.output_only
+    res = score(scn, run_pipeline(scn), PERSIST_SEED)
+    assert res.found_by_3s, res
+    assert res.false_max <= 1, res
