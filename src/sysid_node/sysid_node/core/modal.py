@@ -56,7 +56,8 @@ class ModalParameters:
         d["shape"] = [[float(z.real), float(z.imag)] for z in np.asarray(self.shape)]
         for k in ("pole_discrete", "pole_continuous"):
             d[k] = [float(np.real(d[k])), float(np.imag(d[k]))]
-        d["stable"] = bool(d["stable"])
+        for k in ("stable", "overfit_only"):
+            d[k] = bool(d[k])
         return d
 
     @classmethod
