@@ -4,7 +4,7 @@ batch algorithm, any block length, numerical soundness over an hour at lambda = 
 import numpy as np
 import pytest
 from sysid_node.core import InputError, RecursiveDSRA, identify
-from sysid_node.core.lti import ContinuousSystem, simulate
+from sysid_node.core.lti import ContinuousSystem, simulate, simulate_with_state
 from sysid_node.scenarios.excitations import white
 from sysid_node.scenarios.noise import add_output_noise
 from sysid_node.scenarios.paper import cobra_stick_model, paper_example_systems
@@ -126,6 +126,45 @@ def test_a_young_model_starts_no_change_detection():
         est.absorb(None, y[:260])
         models = _feed(est, None, y[260:], block=16)
         assert len(models) > 30 and est.change_count == 0
+
+
+def _jump_record(seed: int, before_hz: float, after_hz: float, fs: float = 100.0,
+                 n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+    """1 input / 2 outputs: a 4 Hz mode and one at ``before_hz`` that jumps to ``after_hz``
+    half-way (state carried), 5 % noise."""
+    from sysid_node.scenarios.structures import modal_system
+
+    rng = np.random.default_rng(seed)
+    shape = rng.normal(size=(2, 2))
+    a, b = (modal_system([4.0, f], [0.02, 0.02], np.ones((2, 1)), shape, output="velocity")
+            for f in (before_hz, after_hz))
+    u = rng.normal(size=(n, 1))
+    y1, x = simulate_with_state(a, u[: n // 2], fs)
+    y = np.vstack([y1, simulate(b, u[n // 2 :], fs, x0=x)])
+    return u, add_output_noise(y, 0.05, rng)
+
+
+def _changes(u: np.ndarray, y: np.ndarray, band: tuple[float, float]) -> int:
+    est = RecursiveDSRA(2, 1, fs=100.0, block_rows=10, max_order=4, realization_interval=10,
+                        band=band)
+    _feed(est, u, y, block=10)
+    return est.change_count
+
+
+def test_a_change_above_the_band_is_no_change():
+    """An estimator whose band (0-10 Hz at 100 Hz) ends below 0.75 of Nyquist splits its
+    a-priori error at the band top: a 30 -> 35 Hz jump above the band raises the error (the
+    same estimator with a 45 Hz band, no split, calls it a change in most records) but is no
+    change of its modes (the old code discounted its information for it, random suite draw 41);
+    a 6 -> 7.5 Hz jump inside the band still is one, whenever the unsplit detection sees it."""
+    above = [(_changes(u, y, (0.0, 45.0)), _changes(u, y, (0.0, 10.0)))
+             for u, y in (_jump_record(s, 30.0, 35.0) for s in range(4))]
+    assert sum(full > 0 for full, _ in above) >= 3
+    assert all(low == 0 for _, low in above)
+    inside = [(_changes(u, y, (0.0, 45.0)), _changes(u, y, (0.0, 10.0)))
+              for u, y in (_jump_record(s, 6.0, 7.5) for s in range(4))]
+    assert sum(full > 0 for full, _ in inside) >= 3
+    assert all(low >= 1 for full, low in inside if full)
 
 
 def test_absorb_accumulates_without_realizing_and_the_next_sample_realizes():

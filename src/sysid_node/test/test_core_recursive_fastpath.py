@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.signal import lfilter
+from scipy.signal import butter, lfilter, sosfilt, sosfilt_zi
 from sysid_node.core import RecursiveDSRA
 from sysid_node.core.hankel import window_rows_packed
-from sysid_node.core.lti import simulate
+from sysid_node.core.lti import simulate, simulate_with_state
 from sysid_node.core.recursive import (
+    DETECTION_BAND_MARGIN,
     GATE_REFERENCE_FLOOR,
     GATE_REFERENCE_WINDOWS,
     GATE_WILD_FACTOR,
     INPUT_RECENT_WINDOWS,
+    SPLIT_FILTER_ORDER,
+    SPLIT_NYQUIST_FRACTION,
 )
 from sysid_node.scenarios.excitations import white
 from sysid_node.scenarios.noise import add_output_noise
@@ -27,7 +30,38 @@ from sysid_node.scenarios.structures import modal_system
 
 
 class ReferenceDSRA(RecursiveDSRA):
-    """RecursiveDSRA with the straightforward update path (gate, change statistics, RLS)."""
+    """RecursiveDSRA with the straightforward update path (gate, change statistics split at
+    the band top in every block, RLS)."""
+
+    def reset(self):
+        super().reset()
+        self._ref_split = None  # (filter states, short, long) of the band split
+
+    def _ref_in_band(self, e):
+        """(n, l) in-band rises of the a-priori errors e of one block, the split run on it."""
+        l = self.n_outputs
+        nyq = 0.5 * self.fs
+        if self.band is None or self.band[1] >= SPLIT_NYQUIST_FRACTION * nyq:
+            return np.ones(e.shape, dtype=bool)
+        sos = [butter(SPLIT_FILTER_ORDER, self.band[1] / nyq, kind, output="sos")
+               for kind in ("low", "high")]
+        if self._ref_split is None:
+            zi = [sosfilt_zi(s)[:, :, None] * e[0] for s in sos]
+            self._ref_split = (zi, np.full(2 * l, np.nan), np.full(2 * l, np.nan))
+        zi, short0, long0 = self._ref_split
+        parts, zf = [], []
+        for s, z in zip(sos, zi, strict=True):
+            part, z = sosfilt(s, e, axis=0, zi=z)
+            parts.append(part**2)
+            zf.append(z)
+        sq = np.hstack(parts)
+        short = self._ref_ew_path(short0, sq, 1.0 - 1.0 / self.change_window)
+        long_ = self._ref_ew_path(long0, sq, self.forgetting_factor)
+        before = np.vstack([long0, long_[:-1]])
+        self._ref_split = (zf, short[-1], long_[-1])
+        ratio_in = short[:, :l] * before[:, l:]
+        ratio_above = short[:, l:] * before[:, :l]
+        return ratio_in >= DETECTION_BAND_MARGIN * ratio_above
 
     def _accumulate(self, data):
         bad = self._ref_gate(data) if self.outlier_gate else None
@@ -136,7 +170,9 @@ class ReferenceDSRA(RecursiveDSRA):
         lay = self.layout
         r = self._theta1.shape[1]
         yf1 = z[:, lay.yf.start : lay.yf.start + self.n_outputs]
-        e2 = (yf1 - z[:, :r] @ self._theta1.T) ** 2
+        e = yf1 - z[:, :r] @ self._theta1.T
+        e2 = e**2
+        in_band = self._ref_in_band(e)
         cuts = []
         pos, n = 0, e2.shape[0]
         while pos < n:
@@ -147,10 +183,11 @@ class ReferenceDSRA(RecursiveDSRA):
             free = max(self._holdoff - 1, 0)
             if self.change_detection and free < len(seg):
                 limit = self.change_threshold * long_
-                hit = short[free + 1 :] > limit[free:-1]
+                hit = (short[free + 1 :] > limit[free:-1]) & in_band[pos + free + 1 :]
                 first = short[free] > self.change_threshold * (
                     self._pe_ms if free == 0 else long_[free - 1]
                 )
+                first &= in_band[pos + free]
                 if first.any():
                     event = free
                 elif hit.any():
@@ -292,3 +329,45 @@ def test_fast_path_equals_reference(record, blocking, stabilize):
     final_f = sorted((md.frequency_hz, md.damping_ratio) for md in fast.modes())
     final_r = sorted((md.frequency_hz, md.damping_ratio) for md in ref.modes())
     np.testing.assert_allclose(final_f, final_r, rtol=1e-6, atol=1e-9)
+
+
+def _above_band_record():
+    """1 input / 2 outputs at 100 Hz, band 0-10 Hz (split at its top): a 30 -> 35 Hz jump above
+    the band at 10 s (the unsplit statistic rises, the split vetoes it), a 6 -> 7.5 Hz jump
+    inside it at 20 s (a change), 5 % noise, a spike."""
+    rng = np.random.default_rng(1)
+    fs, n = 100.0, 3000
+    shape = rng.normal(size=(2, 3))
+    systems = [modal_system([4.0, f_in, f_above], [0.02, 0.02, 0.02], np.ones((3, 1)), shape,
+                            output="velocity") for f_in, f_above in ((6, 30), (6, 35), (7.5, 35))]
+    u = white(n, 1, rng)
+    parts, x = [], None
+    for k, system in enumerate(systems):
+        y, x = simulate_with_state(system, u[k * 1000 : (k + 1) * 1000], fs, x0=x)
+        parts.append(y)
+    y = add_output_noise(np.vstack(parts), 0.05, rng)
+    y[500, 0] *= 1e5
+    return u, y, fs, {"block_rows": 10, "max_order": 4, "forgetting_factor": 0.99,
+                      "realization_interval": 10, "band": (0.0, 10.0)}
+
+
+@pytest.mark.parametrize("blocking", ["single", "irregular"])
+def test_on_demand_band_split_equals_the_split_of_every_block(blocking):
+    """The band split of the change detection is computed when the unsplit statistic rises
+    (or 256 errors are queued): the same decisions as splitting every block (ReferenceDSRA),
+    on a record whose unsplit statistic rises for a change above the band (vetoed: the same
+    estimator with a 45 Hz band, no split, counts it) and for one inside it."""
+    rec = _above_band_record()
+    n = rec[1].shape[0]
+    blocks = [1] * n if blocking == "single" else list(np.diff(np.r_[0:n:37, n]))
+    fast, cuts_f, models_f, _ = _trace(RecursiveDSRA, rec, blocks)
+    ref, cuts_r, models_r, _ = _trace(ReferenceDSRA, rec, blocks)
+    u, y, fs, cfg = rec
+    unsplit, _, _, _ = _trace(RecursiveDSRA, (u, y, fs, {**cfg, "band": (0.0, 45.0)}), blocks)
+    assert ref._change_count >= 1 and unsplit._change_count > ref._change_count
+    assert cuts_f == cuts_r
+    assert fast._change_count == ref._change_count
+    if fast._split_queued:  # the errors not yet split
+        fast._split_paths()
+    np.testing.assert_allclose(fast._split_long, ref._ref_split[2], rtol=1e-9)
+    assert [mf.time_s for mf in models_f] == [mr.time_s for mr in models_r]

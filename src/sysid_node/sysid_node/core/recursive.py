@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg
-from scipy.signal import lfilter
+from scipy.signal import butter, lfilter, sosfilt, sosfilt_zi
 
 from .batch import model_from_projection
 from .hankel import Layout, window_order, window_rows_packed
@@ -83,6 +83,23 @@ GATE_REFERENCE_FLOOR = 1e-3
 #: A gate prediction this many times larger than the largest output sample of the block as it
 #: came (or than the start-up RMS, scaled units) is wild: 0 is used instead.
 GATE_WILD_FACTOR = 1e3
+#: Change detection split at the band top (``_split_band``) when the band's top lies below this
+#: fraction of the Nyquist frequency: there is room above the band for a change the
+#: estimator's modes do not hold (in practice the automatic band's low group, whose band ends at
+#: a third of its rate at most; the main estimator's ends at 0.4 of its rate, 0.8 Nyquist).
+SPLIT_NYQUIST_FRACTION = 0.75
+#: A rise of the a-priori error is a change for the estimator when the in-band part's
+#: short/long mean-square ratio is at least this many times that of the part above the band
+#: (per output): a change above the band (a mode there appearing or jumping, leaking through
+#: the decimation filter) raises the part above more. Calibration on a white a-priori error
+#: (no change; band top 0.2-0.33 fs, memories 100-1000 samples, 2e5 samples): the in-band
+#: ratio over the part above's is 1.0 at the median and 2.2-2.7 at the 99th percentile, so 2
+#: asks a rise to be mostly the band's, beyond most of the parts' own scatter; a change inside
+#: the band raises the in-band ratio by the change threshold (3) or more. A change close below
+#: the band top leaks into the part above (order 4: -13 dB at 0.7 of the top).
+DETECTION_BAND_MARGIN = 2.0
+#: Order of the Butterworth low / high pass pair that splits the a-priori error at the band top.
+SPLIT_FILTER_ORDER = 4
 
 
 class RecursiveDSRA:
@@ -101,7 +118,9 @@ class RecursiveDSRA:
 
     Change detection (beyond the paper, for abrupt changes such as its 6 Hz example): when the
     short-term (``change_window`` samples) mean square of the a-priori prediction error of any
-    output exceeds ``change_threshold`` times its long-term (1 / (1 - lambda)) level, the old
+    output exceeds ``change_threshold`` times its long-term (1 / (1 - lambda)) level (and,
+    with a band ending below SPLIT_NYQUIST_FRACTION of Nyquist, the rise is the band's:
+    :meth:`_in_band_rises`; a change above the band is none of this estimator's), the old
     information is discounted by ``change_discount`` (R <- c R + (1 - c) Delta), and once more
     2i samples later (the windows that straddle the change are inconsistent with any single
     LTI model); then no new detection for one memory length. ``change_count`` counts the detections.
@@ -208,7 +227,10 @@ class RecursiveDSRA:
             raise InputError(
                 f"damping_bounds must be (low, high) with low < high, got {damping_bounds}"
             )
+        old = getattr(self, "band", None)
         self.band, self.damping_bounds = band, damping_bounds
+        if hasattr(self, "_split_sos") and (old and old[1]) != (band and band[1]):
+            self._reset_split()  # a new band top: a new split
 
     def reset(self) -> None:
         """Forget all data and the model (configuration is kept)."""
@@ -239,6 +261,7 @@ class RecursiveDSRA:
         self._coef = np.zeros((0, 0))
         self._holdoff = 0
         self._second_discount = 0
+        self._reset_split()
         self._change_count = 0
         self.model: IdentifiedModel | None = None
         self.samples_seen = 0
@@ -643,41 +666,48 @@ class RecursiveDSRA:
         if shared is None:
             buf = np.concatenate((self._tail, data))
             z = window_rows_packed(buf, self.n_inputs, self.block_rows)
-            e2 = None
+            err = None  # the a-priori errors, computed by _change_cuts
         else:
             buf, z, p = shared
             l = self.n_outputs
             yf1 = self.layout.yf.start
-            e2 = (z[:, yf1 : yf1 + l] - p[:, l:]) ** 2
+            err = z[:, yf1 : yf1 + l] - p[:, l:]
         self._tail = buf[-(2 * self.block_rows - 1) :]
         if z.shape[0] == 0:
             return
         start = 0
-        for cut in self._change_cuts(z, e2):  # discount the old information before `cut`
+        for cut in self._change_cuts(z, err):  # discount the old information before `cut`
             self._add_windows(z[start:cut])
             self._discount(self.change_discount)
             start = cut
         self._add_windows(z[start:])
 
-    def _change_cuts(self, z: np.ndarray, e2: np.ndarray | None = None) -> list[int]:
+    def _change_cuts(self, z: np.ndarray, err: np.ndarray | None = None) -> list[int]:
         """Run the prediction-error statistics over the windows z sample by sample (vectorised,
         :meth:`_ew_paths`) and return the window indices before which the information is
         discounted.
 
         The a-priori error of window k is that of the first future output under the latest
-        (A2) estimate, e_k = y_{f,1} - theta_1 [u_p; y_p; u_f] (``e2``, its square, when the
-        caller has it from :meth:`_shared_product`). Per sample: the short- and long-term mean
-        squares of the error are updated, a change is declared when the short one exceeds
-        ``change_threshold`` times the long one of the sample before (outside the hold-off),
-        and a second discount follows 2i samples later. The result does not depend on how the
-        data were split into blocks.
+        (A2) estimate, e_k = y_{f,1} - theta_1 [u_p; y_p; u_f] (``err`` when the caller has it
+        from :meth:`_shared_product`). Per sample: the short- and long-term mean squares of the
+        error are updated, a change is declared when the short one exceeds
+        ``change_threshold`` times the long one of the sample before (outside the hold-off)
+        in an output where the rise is the band's (:meth:`_in_band_rises`, when the band
+        ends well below Nyquist), and a second discount follows 2i samples later. The result
+        does not depend on how the data were split into blocks.
         """
         if self._theta1 is None:
             return []
-        if e2 is None:
+        if err is None:
             r = self._theta1.shape[1]
             yf1 = self.layout.yf.start
-            e2 = (z[:, yf1 : yf1 + self.n_outputs] - z[:, :r] @ self._theta1.T) ** 2
+            err = z[:, yf1 : yf1 + self.n_outputs] - z[:, :r] @ self._theta1.T
+        e2 = err**2
+        split = self._split_sos is not None
+        if split:
+            self._split_queue.append(err)
+            self._split_queued += err.shape[0]
+        in_band = None  # (n, l): rises that are the band's (computed on demand)
         cuts: list[int] = []
         pos, n = 0, e2.shape[0]
         thr = self.change_threshold
@@ -691,10 +721,16 @@ class RecursiveDSRA:
                 # against the long-term level of the sample before: shifted by one (NaN
                 # compares False: no detection before the statistics have started)
                 first = short[free] > thr * (self._pe_ms if free == 0 else long_[free - 1])
+                rise = short[free + 1 :] > thr * long_[free:-1]
+                if split and (first.any() or rise.any()):  # is the rise the band's?
+                    if in_band is None:
+                        in_band = self._in_band_rises(n)
+                    first &= in_band[pos + free]
+                    rise &= in_band[pos + free + 1 :]
                 if first.any():
                     event = free
                 elif free + 1 < ns:
-                    hit = (short[free + 1 :] > thr * long_[free:-1]).any(axis=1)
+                    hit = rise.any(axis=1)
                     if hit.any():
                         event = free + 1 + int(np.argmax(hit))
             second = self._second_discount - 1 if self._second_discount > 0 else ns
@@ -714,7 +750,60 @@ class RecursiveDSRA:
             if event < ns:
                 cuts.append(pos + event)
             pos += last + 1
+        if split and self._split_queued >= self.MAX_QUEUED:
+            self._split_paths()  # keep the queue short (the split states advance)
         return cuts
+
+    # ------------------------------------------------------------------ band split
+
+    def _reset_split(self) -> None:
+        """Low / high pass (second-order sections) at the band top when the band ends below
+        SPLIT_NYQUIST_FRACTION of Nyquist, else None; their states and the split parts'
+        short- and long-term mean squares start afresh."""
+        top = None if self.band is None else self.band[1]
+        nyq = 0.5 * self.fs
+        self._split_sos = None
+        if top is not None and top < SPLIT_NYQUIST_FRACTION * nyq:
+            wn = top / nyq
+            self._split_sos = (butter(SPLIT_FILTER_ORDER, wn, "low", output="sos"),
+                               butter(SPLIT_FILTER_ORDER, wn, "high", output="sos"))
+        self._split_zi: tuple[np.ndarray, np.ndarray] | None = None
+        nan = np.full(2 * self.n_outputs, np.nan)
+        self._split_short, self._split_long = nan, nan.copy()
+        self._split_queue: list[np.ndarray] = []  # a-priori errors not yet split
+        self._split_queued = 0
+
+    def _split_paths(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Split the queued a-priori errors at the band top and run the parts' mean squares
+        over them: (short, long, long of the sample before), (n, 2l) each, columns :l the
+        in-band part, l: the part above (exponential means as :meth:`_ew_paths`; filter and
+        mean states carried: the result does not depend on when the queue is split)."""
+        err = (self._split_queue[0] if len(self._split_queue) == 1
+               else np.concatenate(self._split_queue))
+        self._split_queue, self._split_queued = [], 0
+        low, high = self._split_sos
+        if self._split_zi is None:  # steady state of the first error held
+            self._split_zi = tuple(sosfilt_zi(s)[:, :, None] * err[0] for s in (low, high))
+        lo, zlo = sosfilt(low, err, axis=0, zi=self._split_zi[0])
+        hi, zhi = sosfilt(high, err, axis=0, zi=self._split_zi[1])
+        self._split_zi = (zlo, zhi)
+        sq = np.concatenate((lo, hi), axis=1)
+        sq *= sq
+        short = self._ew_path(self._split_short, sq, 1.0 - 1.0 / self.change_window)
+        long_ = self._ew_path(self._split_long, sq, self.forgetting_factor)
+        before = np.concatenate((self._split_long[None, :], long_[:-1]))
+        self._split_short, self._split_long = short[-1], long_[-1]
+        return short, long_, before
+
+    def _in_band_rises(self, n: int) -> np.ndarray:
+        """(n, l) for the last n queued errors: the in-band part's short/long ratio (the
+        short mean square over the long one of the sample before) is at least
+        DETECTION_BAND_MARGIN times that of the part above the band (NaN: False)."""
+        short, _, before = self._split_paths()
+        l = self.n_outputs
+        short, before = short[-n:], before[-n:]
+        return short[:, :l] * before[:, l:] >= (
+            DETECTION_BAND_MARGIN * short[:, l:] * before[:, :l])
 
     def _add_windows(self, z: np.ndarray) -> None:
         """R_k = lambda_k R_{k-1} + z_k z_k' + (1 - lambda_k) Delta over the rows of z (the RLS
