@@ -721,16 +721,20 @@ class RecursiveDSRA:
                 # against the long-term level of the sample before: shifted by one (NaN
                 # compares False: no detection before the statistics have started)
                 first = short[free] > thr * (self._pe_ms if free == 0 else long_[free - 1])
-                rise = short[free + 1 :] > thr * long_[free:-1]
-                if split and (first.any() or rise.any()):  # is the rise the band's?
+                found = first.any()
+                if found and split:  # a rise: is it the band's?
                     if in_band is None:
                         in_band = self._in_band_rises(n)
-                    first &= in_band[pos + free]
-                    rise &= in_band[pos + free + 1 :]
-                if first.any():
+                    found = (first & in_band[pos + free]).any()
+                if found:
                     event = free
                 elif free + 1 < ns:
+                    rise = short[free + 1 :] > thr * long_[free:-1]
                     hit = rise.any(axis=1)
+                    if split and hit.any():
+                        if in_band is None:
+                            in_band = self._in_band_rises(n)
+                        hit = (rise & in_band[pos + free + 1 :]).any(axis=1)
                     if hit.any():
                         event = free + 1 + int(np.argmax(hit))
             second = self._second_discount - 1 if self._second_discount > 0 else ns
