@@ -13,8 +13,9 @@ runs its first 6 cases per effect and all 40 clean ones (seeded draws of
 prints the per-case breakdown of the effect cases not ranked right. ``--ceiling`` also validates
 every effect case's clean twin (the same draw without the effect) and prints, per effect, the
 median ceiling (how far the baseline's error falls without the effect: the error the effect
-adds, what adding it can be expected to remove) and the share ranked right among the cases
-whose ceiling is at least 10 %.
+adds, what adding it can be expected to remove; for feedback, which has no twin, the drop of
+the input's held-out error the true loop gives, ``suite.loop_ceiling``) and the share ranked
+right among the cases whose ceiling is at least 10 %.
 ``--input-noise F`` measures every case's input with white noise of F x its RMS (the generator's
 inputs are exact; a measured force or command is not): the gates' false-alarm rates on the clean
 cases with a measured input.

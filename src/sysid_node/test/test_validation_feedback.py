@@ -15,7 +15,7 @@ from sysid_node.validation import gates as G
 from sysid_node.validation import residuals as rs
 from sysid_node.validation import suite as S
 from sysid_node.validation.data import ValidationData
-from sysid_node.validation.diagnose import MIN_DROP, P_DROP
+from sysid_node.validation.diagnose import MIN_DROP, P_DROP, confirm
 from sysid_node.validation.gates import Context
 from sysid_node.validation.split import interleaved
 from sysid_node.validation.workflow import Options, run_validation
@@ -131,3 +131,27 @@ def test_a_noisy_measurement_of_a_multisine_in_open_loop_is_not_feedback():
     h = next(h for h in out.hyps if h.effect == "feedback")
     assert h.p_value >= G.P_GATE and not h.significant
     assert "feedback" not in out.added
+
+
+def test_a_loop_under_a_multisine_is_scored_against_the_richest_own_past():
+    """Suite draw 1106014 (multisine, the model fails): the gate fires with 4 own lags (share
+    11 %, p=2e-43), but scored against the same 4 lags the loop lowered the input's held-out
+    error by -1 % and feedback was not ranked; against 32 own lags it does by >= 20 %."""
+    out, h = _run("feedback", 1106014, "multisine")
+    assert h.p_value < G.P_GATE
+    assert h.significant and h.score >= 4 * MIN_DROP and h.drop_p < P_DROP
+    assert "(32 lags" in h.trial_note
+    assert out.hyps[0].effect == "feedback"
+
+
+def test_a_short_own_past_does_not_make_an_open_loop_multisine_look_like_a_loop():
+    """Clean draw 1199010 (multisine, open loop): with 4 own lags the outputs' past stands in
+    for the input's missing own lags (held-out drop 21 %, p=1e-4, on the old score); the
+    score's own past has the most lags whatever the gate's, and finds no loop."""
+    sc = S.draw(None, 1199010, "multisine")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order))
+    ctx = Context(out.data, out.split, out.current, out.before, {})
+    ctx.fitted[("feedback", "input")] = G.input_prediction(ctx, min(G.INPUT_LAGS))
+    h = G.Hypothesis("feedback")
+    confirm(h, ctx, out.current.spec)
+    assert h.score < MIN_DROP and not h.significant

@@ -269,10 +269,21 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
     (its bias is the best causal fit of that data). What the loop explains is the measured
     input: the score is the drop of the input's one-step validation error when the loop fitted
     on the estimation part joins its own past (:func:`.gates.input_prediction`). The trial
-    model is the joint input-output model (its plant is free of the loop's bias)."""
-    ip = ctx.fitted.get(("feedback", "input"))
-    if ip is None:
+    model is the joint input-output model (its plant is free of the loop's bias).
+
+    The score's own-past predictor has the most lags of :data:`.gates.INPUT_LAGS` (both
+    predictions re-fit it on each validation segment): with fewer, the outputs' past, driven
+    by the input's past through the plant, stands in for the missing own lags and looks like
+    a loop. Calibration on the suite's 40 clean (open-loop) cases: held-out drop at 4 lags up
+    to 21 % (multisine 1199010, p=1e-4), at 32 lags at most 2.4 % (1199002), under
+    :data:`MIN_DROP`."""
+    gate_ip = ctx.fitted.get(("feedback", "input"))
+    if gate_ip is None:
         return
+    lags = max(G.INPUT_LAGS)
+    ip = gate_ip if gate_ip.u_lags == lags else G.input_prediction(ctx, lags)
+    if ip is None:  # no segment long enough for the most lags
+        ip = gate_ip
     cmp = rs.compare_errors(ip.open_error, ip.loop_error, rank_batches=40)
     h.score, h.drop_p = max(0.0, cmp.drop), cmp.p_value
     fm, why = _refit(ctx, spec, "feedback", {})
@@ -287,7 +298,8 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
         model_note = f"no loop model: {why}"
     h.trial_note = (
         f"past outputs lower the held-out one-step error of input {ip.input} by "
-        f"{100 * cmp.drop:.0f} % against its own past (p={cmp.p_value:.1e}); {model_note}"
+        f"{100 * cmp.drop:.0f} % against its own past ({ip.u_lags} lags, p={cmp.p_value:.1e}); "
+        f"{model_note}"
     )
     if h.p_value >= G.P_GATE:
         h.trial_note += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"

@@ -141,12 +141,13 @@ def ceiling(effect: str, seed: int, kind: str) -> float:
     cures a misfit the baseline has without the effect can gain more: input_delay 1103007 has
     -41 % and is ranked right). Near zero, the linear model already absorbs the drawn effect
     (the generator sizes it against the true linear system, not against the best linear fit).
-    NaN for feedback (no twin), when either baseline fails or when the two are scored on
-    different errors."""
+    NaN when either baseline fails or when the two are scored on different errors.
+    Feedback has no twin (its disturbance is scaled by the loop) and its score is the input's
+    error, not the output's: :func:`loop_ceiling`."""
     from .workflow import Options, baseline_assessment
 
     if effect == "feedback":
-        return float("nan")
+        return loop_ceiling(draw(effect, seed, kind))
     sc, clean = draw_twin(effect, seed, kind)
     try:
         a = [baseline_assessment(_data(x), Options(order=sc.nominal_order))[3] for x in (sc, clean)]
@@ -156,6 +157,39 @@ def ceiling(effect: str, seed: int, kind: str) -> float:
         return float("nan")
     e = [x.primary_nrmse for x in a]
     return float(1.0 - e[1] / max(e[0], 1e-300))
+
+
+def loop_ceiling(sc) -> float:
+    """What feedback's score (:func:`.diagnose.confirm`) can find in a drawn loop: the relative
+    drop of the input's one-step validation error when the TRUE loop joins its own past, i.e.
+    the reference r = u + gain sum(y)(t - lag) predicted from its own past against u from
+    u's (the score's lags, re-fitted on each validation segment of the split validate makes).
+    The generator sizes a loop by its effect on the output; a gain too small to move the input
+    beyond its own past (white or coloured references) leaves nothing to find. NaN: the
+    baseline fails."""
+    from .gates import INPUT_LAGS
+    from .models import lagged
+    from .residuals import compare_errors, lstsq
+    from .workflow import Options, baseline_assessment
+
+    try:
+        split = baseline_assessment(_data(sc), Options(order=sc.nominal_order))[0]
+    except (ValidationError, ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return float("nan")
+    lags, lag = max(INPUT_LAGS), int(sc.truth["lag"])
+    u = sc.u[:, 0]
+    r = u.copy()
+    r[lag:] += sc.truth["gain"] * sc.y.sum(axis=1)[:-lag]
+    errs: tuple[list, list] = ([], [])
+    for va, vb in split.val_segments:
+        rows = np.arange(max(va, lags), vb)
+        for x, out in ((u, errs[0]), (r, errs[1])):
+            reg = np.column_stack([np.ones(rows.size), lagged(x[:, None], lags)[rows]])
+            out.append(x[rows] - reg @ lstsq(reg, x[rows]))
+    if not errs[0]:
+        return float("nan")
+    return float(compare_errors(np.concatenate(errs[0]), np.concatenate(errs[1]),
+                                rank_batches=40).drop)
 
 
 def run_case(
