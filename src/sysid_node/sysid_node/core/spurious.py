@@ -59,8 +59,12 @@ lifts test 3 for a pole pair that passed the other tests in ``PERSIST_REALIZATIO
 realizations within ``PERSIST_FREQUENCY_TOL`` of the median of those (and within the MAC gate).
 On pure noise through the pipeline (10 s records, 4 each, white noise plus three 20-50 %-damped
 resonances: 145 Hz one output, 231 Hz two outputs) the longest such run of a pole pair below the
-overfit level was 5 and 4 realizations (178 and 308 of them); a lifted pole pair must then
-stay put for the tracker's confirmation (``tracking_confirm_count`` more in a row) as well.
+overfit level was 5 and 4 realizations (178 and 308 of them); on white noise (8 records of 10 s
+each at 200, 500 and 876 Hz, one and two outputs: 218-375 such pole pairs per set) it was 6, 6,
+6, 6, 5 and 5 over the whole record and at most 3 while the memory fills (where the pipeline
+lifts). A lifted pole pair must then stay put for the tracker's confirmation
+(``tracking_confirm_count`` more in a row) as well: a noise pole pair would need about twice
+the longest run seen.
 The pipeline lifts test 3 only while the estimator's memory fills (start-up, where a young
 mode's share is smallest against the level): later, pole pairs that are not modes persist too
 (random suite: a jumped mode's old frequency while its data leave the memory, draw 12; weak
