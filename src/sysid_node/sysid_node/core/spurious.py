@@ -69,13 +69,14 @@ The pipeline lifts test 3 only while the estimator's memory fills (start-up, whe
 mode's share is smallest against the level): later, pole pairs that are not modes persist too
 (random suite: a jumped mode's old frequency while its data leave the memory, draw 12; weak
 lightly damped poles beside a strong mode, draw 6), and the full memory passes the weak modes.
-A strong lightly damped mode's window of 2i samples also leaves pole pairs at whole multiples
-of the realization's resolution fs/(2i) beside it, and these persist as the mode does (random
-suite draw 6: 77.6 and 135.0 Hz beside 73.2 and 126.1 Hz, one and two 4.4 Hz bins away): a
-pole pair within ``SIDEBAND_BINS`` bins of a stronger stable mode of its realization is not a
-candidate (``flag_spurious`` ``resolution_hz``). With a measured input, neither is a pole pair in
-a band the input has not excited over the estimator's memory (its Bartlett spectrum over its
-mean, :func:`input_concentration` of the memory's input windows, below ``INPUT_EXCITED_LEVEL``):
+A pole pair within ``SIDEBAND_BINS`` bins of the realization's resolution fs/(2i) of a stronger
+stable mode is not resolved from it (two bins: the main-lobe half-width of the Hann taper test
+5 uses at that resolution) and persists as the strong mode does, so it is not a candidate
+(``flag_spurious`` ``resolution_hz``; random suite draw 6: 77.6 Hz, 1.8 bins of 2.46 Hz above
+a strong 73.2 Hz mode, lifted and tracked false at 4.3 and 7.0-7.4 s). With a measured input,
+neither is a pole pair in a band the input has not excited over the estimator's memory (its
+Bartlett spectrum over its mean, :func:`input_concentration` of the memory's input windows,
+below ``INPUT_EXCITED_LEVEL``):
 the input is not persistently exciting there, the projection is undetermined in that band and
 its pole pair stays put because the input's deficiency does (drawn swept-input record 705: a
 0.02 %-damped 104.2 Hz pole pair, lifted in 13 realizations, a false track for 0.8 s, while the
@@ -122,8 +123,8 @@ PERSIST_REALIZATIONS = 6
 PERSIST_FREQUENCY_TOL = 0.005
 #: ... and within this MAC of the run's latest shape (more than one output).
 PERSIST_MAC = 0.9
-#: A candidate is not within this many bins fs/(2i) of a stronger stable mode (its window
-#: sidebands at one and two bins: random suite draw 6).
+#: A candidate is not within this many bins fs/(2i) of a stronger stable mode (not resolved
+#: from it: the Hann main lobe's half-width, as test 5's two bins).
 SIDEBAND_BINS = 2.0
 #: ... nor where the input over the estimator's memory (its Bartlett spectrum over its mean,
 #: :func:`input_concentration`) is below this level: a band the input has not excited yet.
