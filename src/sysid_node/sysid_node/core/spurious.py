@@ -80,8 +80,9 @@ below ``INPUT_EXCITED_LEVEL``):
 the input is not persistently exciting there, the projection is undetermined in that band and
 its pole pair stays put because the input's deficiency does (drawn swept-input record 705: a
 0.02 %-damped 104.2 Hz pole pair, lifted in 13 realizations, a false track for 0.8 s, while the
-sweep was at 60-70 Hz: concentration there 6e-4; a white input's lowest 0.064 over 5139 pole
-pairs, 200 Hz, 4 records of 10 s, 1 input).
+sweep was at 60-70 Hz: concentration there 6e-4; a white input's lowest 0.049 over 33 068
+pole pairs: 200, 500 and 876 Hz, one and two inputs, 4 records of 10 s each, 1 % quantiles
+0.35-0.78).
 
 Consistency over successive realizations, shape consistency (MAC) and the ranking by
 contribution are the tracker's part (``tracking.py``).
