@@ -24,6 +24,7 @@ from scipy import signal
 
 from sysid_node import params as P
 from sysid_node.core.band import PEAK_MIN_BINS, split_frequency, structure_band
+from sysid_node.core.spurious import Persistence
 from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
 from sysid_node.ingest import Chunk, Ingest
@@ -175,6 +176,7 @@ class Pipeline:
         )
         self._layout = (n_outputs, n_inputs)
         self.low_band = self._new_low_band()
+        self._persistence = Persistence()  # test 3 over successive realizations
         if not (keep_tracks and self.tracker is not None):
             self.tracker = ModeTracker(**self._tracker_kwargs(ModeTracker))
             self._tracked: list = []
@@ -813,7 +815,7 @@ class Pipeline:
             if low is not None:  # the group below the split from its own estimator
                 modes = [m for m in modes if m.frequency_hz >= low.split_hz] + low.current(
                     t_data, self.values["realization_rate"])
-            self._track(modes, int(c.stamps_ns[k]) * 1e-9)
+            self._track(modes, int(c.stamps_ns[k]) * 1e-9, _young(est))
         dt = time.perf_counter() - t0
         if self.budget is not None and not absorb:
             # the CPU time of the realizations and the tracking after them (of the whole piece
@@ -844,9 +846,11 @@ class Pipeline:
         share = float(self.values["realization_budget"])
         self.budget = RealizationBudget(share, clock=clock) if share > 0 else None
 
-    def _track(self, modes: list, t: float) -> None:
+    def _track(self, modes: list, t: float, young: bool = False) -> None:
         """The current (live) band, bounds and mode count, then the tracker (which matches only
-        the modes that passed the spurious-mode tests: ``spurious_rejection``). At most
+        the modes that passed the spurious-mode tests: ``spurious_rejection``; while the
+        estimator is ``young`` test 3 is lifted for pole pairs that persist over successive
+        realizations: ``core.spurious.Persistence``). At most
         ``max_modes`` candidates: the stable ones first, then by contribution (scale-free, the
         tracker's ranking; :func:`~sysid_node.core.modal.select_modes`)."""
         v = self.values
@@ -856,6 +860,7 @@ class Pipeline:
             if fmin <= m.frequency_hz <= fmax
             and v["damping_min"] <= m.damping_ratio <= v["damping_max"]
         ]
+        self._persistence.apply(modes, young)
         modes = sorted(modes, key=lambda m: (not getattr(m, "stable", True),
                                              -_finite(_rank_key(m))))[: v["max_modes"]]
         self._tracked = self.tracker.update(modes, t, self._excitation())
@@ -1112,6 +1117,12 @@ def _model_order(est: Any) -> int:
     if model is not None and getattr(model, "A", None) is not None:
         return int(np.asarray(model.A).shape[0])
     return 0
+
+
+def _young(est: Any) -> bool:
+    """The estimator's memory 1/(1 - lambda) is not filled yet (start-up)."""
+    lam = float(getattr(est, "forgetting_factor", 1.0))
+    return int(getattr(est, "samples_seen", 0)) < 1.0 / max(1.0 - lam, 1e-12)
 
 
 def _rank_key(m: Any) -> float:

@@ -125,11 +125,11 @@ TARGET_SEEDS = range(8)
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
     "issue #10 targets not met by the defaults: benchmarks/random_suite.py --draws 26 "
-    "--first-seed 0 and 26 (52 draws, defaults) gives every mode within 2 % by 3 s in 69.2 % "
-    "of draws (target 90 %; input-output 96 %, output-only 44 % against an efficient "
-    "estimator's 81 %: suite.ambient_ceiling), false tracked per estimate mean 0.14 / max 3 "
-    "(target 0.5 / 2; the 3 in output-only draws 16, 27), after a change 79.2 % and unchanged "
-    "modes kept 85.5 % (target 95 %), settled 88.9 %"))
+    "--first-seed 0 and 26 (52 draws, defaults) gives every mode within 2 % by 3 s in 71.2 % "
+    "of draws (target 90 %; input-output 96 %, output-only 48 % against an efficient "
+    "estimator's 81 %: suite.ambient_ceiling), false tracked per estimate mean 0.15 / max 3 "
+    "(target 0.5 / 2; the 3 in output-only draws 16, 27), after a change 78.7 % and unchanged "
+    "modes kept 85.0 % (target 95 %), settled 88.9 %"))
 def test_issue_10_targets_on_the_first_draws():
     from sysid_node.suite import run_draw, summary
 
@@ -175,4 +175,20 @@ def test_one_output_output_only_neighbouring_low_modes_stay_apart():
     assert scn.output_only and scn.y.shape[1] == 1
     res = score(scn, run_pipeline(scn), ONE_OUTPUT_SEED)
     assert res.found_by_3s and res.settled_share >= 0.9, res
+    assert res.false_max <= 1, res
+
+
+#: Seed 25: output-only from one output, 145 Hz, seven modes; the 0.2 %-damped 43.83 Hz one is
+#: within 0.5 % in 69 of the first 83 realizations but below the overfit level (spurious test 3)
+#: in 55 of them, and was tracked only at 3.6 s (found by 3 s: False). Test 3 is lifted for
+#: pole pairs that persist while the estimator's memory fills (core.spurious.Persistence).
+PERSIST_SEED = 25
+
+
+@pytest.mark.slow
+def test_a_persistent_mode_below_the_overfit_level_is_found_by_3_s():
+    scn = draw_modal_scenario(np.random.default_rng(PERSIST_SEED), duration_s=DURATION_S)
+    assert scn.output_only
+    res = score(scn, run_pipeline(scn), PERSIST_SEED)
+    assert res.found_by_3s, res
     assert res.false_max <= 1, res

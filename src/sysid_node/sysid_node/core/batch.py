@@ -12,8 +12,10 @@ from .model import IdentifiedModel
 from .order import max_order, select_order
 from .realization import Projection, ShiftBasis, kalman_gain, project, realize, shift_poles
 from .spurious import (
+    INPUT_EXCITED_LEVEL,
     check_orders,
     flag_spurious,
+    input_concentration,
     input_own,
     noise_peak_threshold,
     overfit_threshold,
@@ -107,6 +109,7 @@ def model_from_projection(
     frequency_gate: float | None = 0.05,
     recent_input_cov: np.ndarray | None = None,
     reflect_unstable: bool = False,
+    memory_input_cov: np.ndarray | None = None,
 ) -> IdentifiedModel:
     """Realize order ``order`` from a projection of scaled data and undo the channel scaling.
 
@@ -115,8 +118,10 @@ def model_from_projection(
     tracking ``frequency_gate``, None: no determined-frequency test); the stable modes then
     come first when ``max_modes`` cuts. ``recent_input_cov``: the covariance of the recent
     windows' inputs, for the test that a pole pair is not the input's own
-    (:func:`~sysid_node.core.spurious.input_own`; None: not run). ``reflect_unstable``: see
-    :func:`~sysid_node.core.modal.extract_modes`.
+    (:func:`~sysid_node.core.spurious.input_own`; None: not run). ``memory_input_cov``: the
+    same over the estimator's memory; a pole pair where that input did not excite the system
+    is no candidate for lifting the overfit-level test (``spurious.py``; None: not checked).
+    ``reflect_unstable``: see :func:`~sysid_node.core.modal.extract_modes`.
     """
     check = [c for c in (check or []) if 1 <= c <= max_order(proj) and c != order]
     basis = ShiftBasis(proj, max([order, *check]))
@@ -145,14 +150,17 @@ def model_from_projection(
         width = fs / 2 if band is None else min(band[1], fs / 2) - band[0]
         n_eff = proj.sum_w**2 / max(proj.sum_w2, 1e-300)  # effective number of windows
         lay = proj.layout
+        f_modes = np.array([md.frequency_hz for md in modes])
         flag_spurious(
             modes,
             freqs,
             frequency_gate,
             noise_peak_threshold(width, n_eff / fs),
             overfit_threshold(lay.n_past + lay.i * lay.m, lay.l, n_eff),
-            None if recent_input_cov is None else input_own(
-                recent_input_cov, lay.m, np.array([md.frequency_hz for md in modes]), fs),
+            None if recent_input_cov is None else input_own(recent_input_cov, lay.m, f_modes, fs),
+            fs / (2 * lay.i),
+            None if memory_input_cov is None else (
+                input_concentration(memory_input_cov, lay.m, f_modes, fs) >= INPUT_EXCITED_LEVEL),
         )
     modes = select_modes(modes, None, None, max_modes)
     return IdentifiedModel(

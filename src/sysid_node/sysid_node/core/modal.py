@@ -30,7 +30,9 @@ class ModalParameters:
     has ``snr < 1``). ``mpc`` is the modal phase collinearity of the shape (1 = real shape; NaN
     for one output). ``stable`` says whether the mode passed the spurious-mode tests of the
     realization that produced it (``spurious.py``; True when none were run) and
-    ``stable_orders`` in how many of the check orders it reappeared (-1 = not checked).
+    ``stable_orders`` in how many of the check orders it reappeared (-1 = not checked);
+    ``overfit_only``: it failed the overfit-level test alone (``spurious.py``, test 3), which
+    :class:`~sysid_node.core.spurious.Persistence` may lift.
     """
 
     frequency_hz: float
@@ -46,6 +48,7 @@ class ModalParameters:
     mpc: float = float("nan")
     stable: bool = True
     stable_orders: int = -1
+    overfit_only: bool = False
 
     def to_dict(self) -> dict:
         """JSON-friendly dict (complex numbers as [re, im])."""
@@ -53,7 +56,8 @@ class ModalParameters:
         d["shape"] = [[float(z.real), float(z.imag)] for z in np.asarray(self.shape)]
         for k in ("pole_discrete", "pole_continuous"):
             d[k] = [float(np.real(d[k])), float(np.imag(d[k]))]
-        d["stable"] = bool(d["stable"])
+        for k in ("stable", "overfit_only"):
+            d[k] = bool(d[k])
         return d
 
     @classmethod

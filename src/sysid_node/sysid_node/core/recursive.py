@@ -948,6 +948,8 @@ class RecursiveDSRA:
                 frequency_gate=None,
                 recent_input_cov=self._u_recent if self._u_cols.size else None,
                 reflect_unstable=True,
+                memory_input_cov=self._info[np.ix_(self._u_cols, self._u_cols)]
+                if self._u_cols.size else None,
             )
         except (linalg.LinAlgError, np.linalg.LinAlgError, ValueError):
             self.realizations_skipped += 1
