@@ -739,7 +739,7 @@ class RecursiveDSRA:
                         event = free + 1 + int(np.argmax(hit))
             second = self._second_discount - 1 if self._second_discount > 0 else ns
             if event < ns and event <= second:  # a (new) change
-                self._holdoff = int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
+                self._holdoff = self._holdoff_samples
                 self._second_discount = 2 * self.block_rows
                 self._change_count += 1
             elif second < ns:  # the second discount, 2i samples after a change
@@ -848,8 +848,13 @@ class RecursiveDSRA:
         a model realized from fewer windows than its memory predicts fresh data worse than the
         data it was fitted to, and that rise is no change (random suite draws 15, 25: the
         young low group's information was discounted twice in its first second)."""
-        memory = int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
-        self._holdoff = max(self._holdoff, memory)
+        self._holdoff = max(self._holdoff, self._holdoff_samples)
+
+    @property
+    def _holdoff_samples(self) -> int:
+        """The detection hold-off after a change or the first realization: one memory,
+        1 / (1 - lambda) samples (at most 1000)."""
+        return int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
 
     def _discount(self, c: float) -> None:
         """Keep a fraction c of the old information (R >= Delta is preserved)."""

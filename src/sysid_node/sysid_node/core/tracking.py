@@ -119,9 +119,9 @@ class TrackedMode:
     rank_log: deque = field(default_factory=lambda: deque(maxlen=RANK_LOG), repr=False)
 
     def rank_at(self, t: float) -> float:
-        """Median contribution at its last logged hit at or before ``t`` (NaN if none)."""
-        before = [r for s, r in self.rank_log if s <= t]
-        return before[-1] if before else float("nan")
+        """Median contribution at its last logged hit at or before ``t`` (NaN if none; the log
+        is in time order, so the scan stops at the first such hit from the end)."""
+        return next((r for s, r in reversed(self.rank_log) if s <= t), float("nan"))
 
     @property
     def rank(self) -> float:
