@@ -24,6 +24,7 @@ from scipy import signal
 
 from sysid_node import params as P
 from sysid_node.core.band import PEAK_MIN_BINS, split_frequency, structure_band
+from sysid_node.core.recursive import memory_samples
 from sysid_node.core.spurious import Persistence
 from sysid_node.decimation import Decimator
 from sysid_node.diagnostics import HEALTH_FAULT, merge_health
@@ -874,7 +875,7 @@ class Pipeline:
             return None
         fs = self.identification_rate
         lam = P.effective_lambda(self.values, fs, self.band_low)
-        n = min(self._recent.n, max(SPECTRUM_MIN_SAMPLES, round(2.0 / (1.0 - lam))))
+        n = min(self._recent.n, max(SPECTRUM_MIN_SAMPLES, round(2.0 * memory_samples(lam))))
         made, fn = self._excited
         if made is not None and 0 <= self._samples - made < max(1, n // 8):
             return fn
@@ -1122,7 +1123,7 @@ def _model_order(est: Any) -> int:
 def _young(est: Any) -> bool:
     """The estimator's memory 1/(1 - lambda) is not filled yet (start-up)."""
     lam = float(getattr(est, "forgetting_factor", 1.0))
-    return int(getattr(est, "samples_seen", 0)) < 1.0 / max(1.0 - lam, 1e-12)
+    return int(getattr(est, "samples_seen", 0)) < memory_samples(lam)
 
 
 def _rank_key(m: Any) -> float:

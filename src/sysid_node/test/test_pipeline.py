@@ -121,6 +121,19 @@ def test_live_forgetting_factor_keeps_estimate_structural_resets(paper):
     assert any("structural" in line and "block_rows" in line for line in lines)
 
 
+def test_forgetting_factor_one_is_a_growing_window(paper):
+    """lambda = 1 (the parameter's documented top: a window that never forgets) runs with a
+    measured input: every memory length is finite (was a division by zero in the input's
+    excitation window, which reset the estimator at every step)."""
+    stamps, u, y = paper
+    lines: list[str] = []
+    recs = _run(Pipeline({"forgetting_factor": 1.0, "freq_max": 10.0}, lines.append),
+                stamps[:1000], u[:1000], y[:1000], block=50)
+    assert recs and recs[-1].forgetting_factor == 1.0
+    assert recs[-1].samples_used >= 900  # nothing reset
+    assert _near(recs[-1], 2.0) and _near(recs[-1], 4.0)
+
+
 def test_gap_counted_and_estimate_recovers(paper):
     stamps, u, y = paper
     mask = np.ones(len(stamps), bool)

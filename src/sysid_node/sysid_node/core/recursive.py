@@ -102,6 +102,12 @@ DETECTION_BAND_MARGIN = 2.0
 SPLIT_FILTER_ORDER = 4
 
 
+def memory_samples(forgetting_factor: float) -> float:
+    """The RLS memory 1 / (1 - lambda) [samples] of Appendix B's exponential window (finite,
+    about 1e12, for lambda = 1: a growing window never fills)."""
+    return 1.0 / max(1.0 - forgetting_factor, 1e-12)
+
+
 class RecursiveDSRA:
     """Online DSRA over blocks of samples of any length (including 1).
 
@@ -300,8 +306,13 @@ class RecursiveDSRA:
     def converged(self) -> bool:
         """A model exists, the memory is filled and the data excite the estimator."""
         self.flush()
-        mem = min(1.0 / max(1.0 - self.forgetting_factor, 1e-9), 10 * self.layout.dim)
+        mem = min(self.memory_samples, 10 * self.layout.dim)
         return self.model is not None and self._excited and self._k >= mem
+
+    @property
+    def memory_samples(self) -> float:
+        """The memory 1 / (1 - lambda) [samples] (:func:`memory_samples`)."""
+        return memory_samples(self.forgetting_factor)
 
     @property
     def information_matrix(self) -> np.ndarray:
@@ -816,7 +827,7 @@ class RecursiveDSRA:
         if n == 0:
             return
         lam_f = self.forgetting_factor
-        memory = 1.0 / max(1.0 - lam_f, 1e-12)
+        memory = self.memory_samples
         first, last = self._k + 1, self._k + n
         if not self.startup_memory or first >= memory:  # steady state: lambda_k = lambda
             w, decay, w_sum, w_sq = self._weights(n, lam_f)  # w_t = prod_{s>t} lambda_s
@@ -854,7 +865,7 @@ class RecursiveDSRA:
     def _holdoff_samples(self) -> int:
         """The detection hold-off after a change or the first realization: one memory,
         1 / (1 - lambda) samples (at most 1000)."""
-        return int(round(1.0 / max(1.0 - self.forgetting_factor, 1e-3)))
+        return int(round(min(self.memory_samples, 1000.0)))
 
     def _discount(self, c: float) -> None:
         """Keep a fraction c of the old information (R >= Delta is preserved)."""
