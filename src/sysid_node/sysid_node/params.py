@@ -104,8 +104,10 @@ PARAMS: tuple[ParamSpec, ...] = (
     _p("max_modes", int, 10,
        "Largest number of modes reported as tracked (the strongest first) [-]; the model "
        "order defaults to twice this", lo=1, hi=50),
-    _p("freq_min", float, 0.0, "Lower edge of the frequency band of reported modes [Hz]",
-       lo=0.0, hi=50000.0, unit="Hz"),
+    _p("freq_min", float, 0.0,
+       "Lower edge of the frequency band of reported modes [Hz]; with the automatic band "
+       "(freq_max 0) the band is chosen from the structure above it, and a change chooses "
+       "it again (estimator reset)", lo=0.0, hi=50000.0, unit="Hz"),
     _p("freq_max", float, 0.0,
        "Upper edge of the band [Hz]; 0 = automatic: after the first 4 s of data (0.4 x "
        "sample rate until then) the band reaches half an octave above the highest peak where "
@@ -276,6 +278,9 @@ def band_error(values: dict[str, Any], fs: float) -> str:
         return f"freq_max={fmax:g} Hz is above the Nyquist frequency {fs / 2:g} Hz"
     if fmin >= fs / 2:
         return f"freq_min={fmin:g} Hz is not below the Nyquist frequency {fs / 2:g} Hz"
+    if fmax <= 0 and fmin >= NYQUIST_SAFE_FRACTION * fs:
+        return (f"freq_min={fmin:g} Hz is not below the automatic band's top "
+                f"{NYQUIST_SAFE_FRACTION:g} x {fs:g} Hz")
     return ""
 
 

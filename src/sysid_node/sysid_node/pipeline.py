@@ -150,6 +150,9 @@ class Pipeline:
                                    self.sample_rate)
         fs = self.identification_rate
         fmin, fmax = self.band
+        if not fmin < fmax:  # freq_min at or above the band's top (band_warning says so)
+            self.estimator = None
+            return
         self.estimator_band_max = fmax
         if self.auto_band:
             # while the automatic band is being chosen the lowest mode is unknown: the window of
@@ -292,8 +295,11 @@ class Pipeline:
             self._band_key = key
             reason = P.band_error(v, v["sample_rate"] or self.sample_rate)
             if reason and reason != self._band_reason:
+                what = ("nothing is identified (set freq_min below it)"
+                        if reason.startswith("freq_min") else
+                        "modes above it cannot be identified (set freq_max below it)")
                 self.log(f"WARN {reason} of the data's sample rate {self.sample_rate:g} Hz: "
-                         "modes above it cannot be identified (set freq_max below it)")
+                         + what)
             self._band_reason = reason
         return self._band_reason
 
@@ -518,7 +524,8 @@ class Pipeline:
     def _band_from_raw(self, prominence: float = 1.0, ratio_factor: float = 1.0):
         t0 = time.perf_counter()
         y, u = self._raw_arrays()
-        choice = structure_band(y, u, self.sample_rate, prominence, ratio_factor)
+        choice = structure_band(y, u, self.sample_rate, prominence, ratio_factor,
+                                self.values["freq_min"])
         self.update_seconds += time.perf_counter() - t0
         return choice
 
@@ -541,8 +548,8 @@ class Pipeline:
         self._split_votes = 0
         top = f"{choice.top_hz:.4g} Hz" if choice.found else "none"
         low = f"{choice.low_hz:.4g} Hz" if math.isfinite(choice.low_hz) else "none"
-        self.log(f"automatic band 0-{self.band[1]:g} Hz (structure above the noise floor up "
-                 f"to {top}, lowest peak {low})")
+        self.log(f"automatic band {self.band[0]:g}-{self.band[1]:g} Hz (structure above the "
+                 f"noise floor up to {top}, lowest peak {low})")
         factor = P.decimation_factor(self.values, self.sample_rate, self.band_edge)
         rows = P.effective_block_rows(self.values, *self._layout, self.sample_rate / factor,
                                       self.band_low)
@@ -712,6 +719,8 @@ class Pipeline:
         ny, nu = c.y.shape[1], 0 if c.u is None else c.u.shape[1]
         if self.estimator is None:
             self._build_estimator(ny, nu, keep_tracks=getattr(self, "_keep_tracks", False))
+            if self.estimator is None:  # an empty band: nothing to identify
+                return []
             self._keep_tracks = False
             self._last_bucket = None
         elif c.new_segment:
@@ -994,6 +1003,8 @@ class Pipeline:
             P.decimation_factor(new, fs, self.band_edge) != self.decimator.factor
         ):
             structural.append("decimation factor")  # e.g. auto decimation and a new freq_max
+        if new["freq_max"] <= 0 and "freq_min" in changes and "automatic band" not in structural:
+            structural.append("freq_min of the automatic band")  # chosen again above it
         self.values = new
         if structural:
             self.log(f"structural parameter(s) changed ({', '.join(sorted(structural))}): "

@@ -34,6 +34,24 @@ def test_modes_in_white_noise_give_a_band_above_them():
     assert 31.0 < ch.fmax_hz < 0.5 * MAX_EDGE_FRACTION * fs  # narrowed
 
 
+def test_structure_below_freq_min_is_not_looked_at():
+    """``fmin_hz`` (the user's freq_min): the band's top and lowest peak are those of the
+    structure above it; with none above, the full band (was: the top of the structure below,
+    a band under freq_min, which the estimator refused: every step failed)."""
+    rng = np.random.default_rng(4)
+    fs, n = 1000.0, 4000
+    y = _resonance(rng, fs, 12.0, 0.01, n) + _resonance(rng, fs, 31.0, 0.02, n, 0.5)
+    y = (y + 0.05 * y.std() * rng.standard_normal(n))[:, None]
+    both = structure_band(y, None, fs)
+    above = structure_band(y, None, fs, fmin_hz=20.0)
+    assert both.low_hz < 12.0 and 20.0 <= above.low_hz < 31.0
+    assert above.fmax_hz == pytest.approx(both.fmax_hz)
+    low = _resonance(rng, fs, 12.0, 0.01, n)[:, None] + 0.05 * rng.standard_normal((n, 1))
+    assert structure_band(low, None, fs).fmax_hz < 100.0
+    none_above = structure_band(low, None, fs, fmin_hz=100.0)
+    assert not none_above.found and none_above.fmax_hz == pytest.approx(MAX_EDGE_FRACTION * fs)
+
+
 def test_white_noise_has_no_structure_and_keeps_the_full_band():
     rng = np.random.default_rng(2)
     for fs in (100.0, 1000.0):

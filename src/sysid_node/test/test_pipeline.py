@@ -134,6 +134,30 @@ def test_forgetting_factor_one_is_a_growing_window(paper):
     assert _near(recs[-1], 2.0) and _near(recs[-1], 4.0)
 
 
+def test_freq_min_above_the_structure_with_the_automatic_band(paper):
+    """freq_min above every mode (automatic band): the band is chosen above it, nothing is
+    tracked and nothing fails (was: the band's top came from the modes below freq_min and the
+    estimator refused the empty band at every step). freq_min above 0.4 fs: said once, no
+    estimate. A live freq_min change re-chooses the automatic band."""
+    stamps, u, y = paper
+    n = 1200
+    lines: list[str] = []
+    pl = Pipeline({"freq_min": 15.0}, lines.append)
+    recs = _run(pl, stamps[:n], u[:n], y[:n], block=50)
+    assert recs and pl.band[0] == 15.0 and pl.band[1] > 15.0
+    assert not any(m.status == "tracked" for r in recs for m in r.modes)
+    lines.clear()
+    pl = Pipeline({"freq_min": 45.0}, lines.append)
+    assert _run(pl, stamps[:n], u[:n], y[:n], block=50) == []
+    assert "freq_min=45 Hz is not below" in pl.band_warning()
+    assert sum("WARN freq_min" in line for line in lines) == 1
+    pl = Pipeline(log=lines.append)
+    recs = _run(pl, stamps[:600], u[:600], y[:600], block=50)
+    assert pl.set_parameters({"freq_min": 3.0}) == ""
+    recs = _run(pl, stamps[600:n], u[600:n], y[600:n], block=50)
+    assert pl.band[0] == 3.0 and _near(recs[-1], 4.0) and not _near(recs[-1], 2.0)
+
+
 def test_gap_counted_and_estimate_recovers(paper):
     stamps, u, y = paper
     mask = np.ones(len(stamps), bool)

@@ -138,14 +138,17 @@ def _channel_ratios(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
-                   prominence: float = 1.0, ratio_factor: float = 1.0) -> BandChoice:
+                   prominence: float = 1.0, ratio_factor: float = 1.0,
+                   fmin_hz: float = 0.0) -> BandChoice:
     """The band ``[0, fmax]`` for the outputs ``y`` (N, l) and the inputs ``u`` (N, m) or None
     sampled at ``fs`` [Hz]. A measured input's lines count too (:data:`INPUT_LINE`): a
     multisine's lines are where the response is excited, so the band reaches above them; its
     broadband level does not (the response shows where a broadband input excites structure).
     ``prominence``: see :func:`_peaks`; ``ratio_factor`` multiplies ``STRUCTURE_RATIO`` (the
     pipeline's rechecks, which may widen the band and rebuild the estimator, ask for clear
-    evidence: 2 and 4; the first choice takes every peak above the ratio)."""
+    evidence: 2 and 4; the first choice takes every peak above the ratio). ``fmin_hz``: the
+    user's lower band edge (``freq_min``); structure below it is not looked at (the band's top
+    and lowest peak are those of what will be identified)."""
     full = MAX_EDGE_FRACTION * fs
     y = np.asarray(y, dtype=float).reshape(len(y), -1)
     n_out = y.shape[1]
@@ -155,12 +158,13 @@ def structure_band(y: np.ndarray, u: np.ndarray | None, fs: float,
     if f.size == 0:
         return BandChoice(full, math.nan, math.nan)
     df = float(f[1] - f[0]) if f.size > 1 else float(f[0])
+    ratios[f < fmin_hz] = 0.0  # excluded by the user: no structure there
     out = ratios[:, :n_out].max(axis=1)
     low = np.flatnonzero(_rising(out, LOW_PROMINENCE) & (out > ratio_factor * STRUCTURE_RATIO))
     low_hz = float(f[low[0]] - 0.5 * df) if low.size else math.nan  # the bin's lower edge
     if np.any(out[:PEAK_MIN_BINS] > ratio_factor * STRUCTURE_RATIO):
         fine = _fine_low(y[:, :n_out], fs, f[PEAK_MIN_BINS - 1] + 0.5 * df,
-                         ratio_factor * STRUCTURE_RATIO)
+                         ratio_factor * STRUCTURE_RATIO, fmin_hz)
         if math.isfinite(fine) and not fine >= low_hz:
             low_hz = fine
     level = ratio_factor * STRUCTURE_RATIO
@@ -209,12 +213,13 @@ def split_frequency(choice: BandChoice, max_hz: float = math.inf) -> float:
     return float(min(middle, max(max_hz, points[k] * math.sqrt(SPLIT_GAP))))
 
 
-def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float) -> float:
+def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float,
+              above_hz: float = 0.0) -> float:
     """The lowest mode when the coarse spectrum has structure in its first bins, which have too
     few bins below them for the rising test (a 2 Hz mode at 1.7 Hz bins sits in the first):
     the same test on a spectrum of ``FINE_SEGMENTS`` segments (4-8 x finer bins), below
-    ``below_hz``, with ``FINE_PROMINENCE`` for its few averages. Lower edge of the bin [Hz], NaN
-    if none."""
+    ``below_hz`` (and from ``above_hz`` on), with ``FINE_PROMINENCE`` for its few averages.
+    Lower edge of the bin [Hz], NaN if none."""
     n = y.shape[0]
     nseg = 2 * n // (FINE_SEGMENTS + 1)
     if nseg < 16:
@@ -223,7 +228,8 @@ def _fine_low(y: np.ndarray, fs: float, below_hz: float, level: float) -> float:
     f, p = f[1:], p[1:]
     floor = np.quantile(p, FLOOR_QUANTILE, axis=0)
     ratio = (p[:, floor > 0] / floor[floor > 0]).max(axis=1, initial=0.0)
-    hit = np.flatnonzero(_rising(ratio, FINE_PROMINENCE) & (ratio > level) & (f < below_hz))
+    hit = np.flatnonzero(_rising(ratio, FINE_PROMINENCE) & (ratio > level) & (f < below_hz)
+                         & (f >= above_hz))
     return float(f[hit[0]] - 0.5 * (f[1] - f[0])) if hit.size else math.nan
 
 
