@@ -189,3 +189,24 @@ def test_correlation_time_of_white_and_ar1():
 
     ar = signal.lfilter([1.0], [1.0, -0.9], rng.standard_normal(20000))
     assert 12 < rs.correlation_time(ar) < 26  # (1 + 0.9) / (1 - 0.9) = 19
+
+
+def test_lstsq_on_a_rank_deficient_design_does_not_depend_on_rounding():
+    """32 lags of a noise-free 5-line multisine span 10 dimensions: with gelsy's default rank
+    threshold (eps) a 1e-15 change of the design moved the coefficients by ~1e-4 of their size
+    (null directions kept with arbitrary weights); at :data:`residuals.RCOND` on unit-norm
+    columns the minimum-norm solution moves by rounding only, and still predicts exactly."""
+    from sysid_node.validation.models import lagged
+
+    rng = np.random.default_rng(3)
+    t = np.arange(4000) / 500.0
+    f = rng.uniform(2.0, 100.0, 5)
+    u = np.sum(np.sin(2 * np.pi * f[:, None] * t + rng.uniform(0, 6, 5)[:, None]), axis=0)
+    x = np.column_stack([np.ones(t.size), lagged(u[:, None], 32)])[32:]
+    y = u[32:]
+    a, b = rs.lstsq(x, y), rs.lstsq(x * (1 + 1e-15), y)
+    assert np.max(np.abs(a - b)) <= 1e-9 * np.max(np.abs(a))
+    assert np.sqrt(np.mean((y - x @ a) ** 2)) <= 1e-8 * np.std(y)
+    # a column of any scale keeps its coefficient (the threshold is on unit-norm columns)
+    xs = x * np.r_[1.0, 1e-12 * np.ones(32)]
+    np.testing.assert_allclose(xs @ rs.lstsq(xs, y), x @ a, atol=1e-8 * np.std(y))

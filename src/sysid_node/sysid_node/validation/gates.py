@@ -60,6 +60,10 @@ FEEDBACK_OUTPUT_LAGS = 5  # output lags of the feedback gate (a controller's del
 LOOP_ITERATIONS = 30  # Gauss-Newton steps of the loop's controller (feedback test) ...
 LOOP_TOLERANCE = 1e-6  # ... until a step lowers the residual sum of squares less than this
 INPUT_LAGS = (4, 8, 16, 32)  # candidate numbers of the input's own lags (feedback test)
+#: the input's own past predicts it when its residual sum of squares is under this share of
+#: the input's (a noise-free multisine: what is left is the least squares' rank truncation,
+#: residuals.RCOND, and rounding; nothing a loop could add to)
+PREDICTABLE = 1e-12
 #: Closed loop for the choice of the scored prediction: past innovations explain at least 10 %
 #: of the input's variance left by its own past (a model error that is a function of the input
 #: leaks a little into the innovations; a controller puts a large share there).
@@ -921,7 +925,7 @@ def input_prediction(
         ss_r, ss_f, _, _, ahead = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own], False)
         _, _, open_e, loop_e, _ = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own])
         tot = float(sum(np.sum(u[est, j] ** 2) for est, _ in pairs))
-        if ss_r <= 1e-12 * tot:  # the input's own past predicts it: no room for a loop
+        if ss_r <= PREDICTABLE * tot:  # the input's own past predicts it: no room for a loop
             f, p, share = 0.0, 1.0, 0.0
         else:
             f = max(0.0, (ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
