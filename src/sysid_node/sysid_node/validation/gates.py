@@ -799,6 +799,9 @@ def conditional_granger(
         ss_f = float(np.sum((target - x_f @ rs.lstsq(x_f, target)) ** 2))
         q = x_f.shape[1] - x_r.shape[1]
         dof = target.size - x_f.shape[1]
+        if ss_r <= PREDICTABLE * float(np.sum(target**2)):  # its own past predicts it
+            out.append((0.0, 1.0, 0.0))
+            continue
         f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
         share = (ss_r - ss_f) / max(ss_r, 1e-300)
         out.append((float(f), float(stats.f.sf(f, q, dof)), float(share)))
