@@ -376,8 +376,7 @@ class ModeTracker:
                         or abs(new.reference[0] - f0) > SUPERSEDE_GATES * self.frequency_gate * f0
                         or not old.rank < SUPERSEDE_FADE * old.rank_at(new.first_seen)):
                     continue
-                sn, so = new.mode.shape, old.mode.shape
-                if np.size(sn) <= 1 or np.size(sn) != np.size(so) or mac(sn, so) >= self.mac_gate:
+                if self._like_shapes(new, old):
                     out.append(old)
                     break
         return out
@@ -468,8 +467,7 @@ class ModeTracker:
             return False
         if abs(za - zb) > 2.0 * self.damping_gate:
             return False
-        sa, sb = a.mode.shape, b.mode.shape
-        return np.size(sa) <= 1 or np.size(sa) != np.size(sb) or mac(sa, sb) >= self.mac_gate
+        return self._like_shapes(a, b)
 
     def _hit(self, tr: TrackedMode, md: ModalParameters, t: float, first: bool = False) -> None:
         tr.history.append((md.frequency_hz, md.damping_ratio))
