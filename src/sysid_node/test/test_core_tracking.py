@@ -22,8 +22,8 @@ def test_ids_are_stable_and_new_modes_start_tentative():
 def test_missing_mode_is_lost_after_timeout_and_reacquired_with_same_id():
     tr = ModeTracker(confirm_hits=1, lost_timeout_s=0.5, drop_timeout_s=5.0)
     tr.update([_m(2.0), _m(4.0)], 0.0)
-    out = tr.update([_m(2.0)], 0.3)
-    assert {t.id: t.status for t in out} == {1: "tracked", 2: "tracked"}
+    out = tr.update([_m(2.0)], 0.3)  # matched in one of two updates: not present (PRESENCE_MIN)
+    assert {t.id: t.status for t in out} == {1: "tracked", 2: "tentative"}
     out = tr.update([_m(2.0)], 0.9)
     assert {t.id: t.status for t in out} == {1: "tracked", 2: "lost"}
     out = tr.update([_m(2.0), _m(4.01)], 1.5)
@@ -306,3 +306,26 @@ def test_two_tracks_not_resolved_by_their_uncertainty_are_one_mode():
         out = tr.update([p(2.435, 0.14, 11.0, 0.1, (1.0, 1.0)),
                          p(2.66, 0.02, 14.0, 0.06, (1.0, -1.0))], 0.05 * k)
     assert [t.status for t in out] == ["tracked", "tracked"]
+
+
+def test_a_pole_present_half_the_time_is_neither_tracked_nor_established_by_a_chance_run():
+    """A weak pole matched in half the realizations (random suite draws 16 and 27: noise poles
+    at 0.52-0.67 presence for seconds) is tentative: a physical mode is found in nearly every
+    one (PRESENCE_MIN). A chance run of confirm_hits in a row confirms it, but it is established
+    only when present over a whole timeout *after* that (it used to be established at once, its
+    window having begun seconds before, and then stayed tracked recurring in one of three
+    realizations); a mode seen in every realization is established as before."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0, consecutive=True)
+    out = []
+    for k in range(70):  # every other update, and one run of three
+        hit = k % 2 == 0 or 40 <= k < 43
+        out = tr.update([_c(7.3, 0.1), _c(2.0, 0.5)] if hit else [_c(2.0, 0.5)], 0.05 * k)
+    status = {round(t.frequency_hz, 1): t for t in out}
+    assert status[7.3].confirmed and not status[7.3].established
+    assert status[7.3].status == "tentative"
+    assert status[2.0].status == "tracked" and status[2.0].established
+    for k in range(70, 90):  # recurring in one of three: still no mode
+        out = tr.update([_c(7.3, 0.1), _c(2.0, 0.5)] if k % 3 == 0 else [_c(2.0, 0.5)],
+                        0.05 * k)
+    assert {round(t.frequency_hz, 1): t.status for t in out} == {2.0: "tracked",
+                                                                7.3: "tentative"}
