@@ -286,7 +286,7 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
         ip = gate_ip
     cmp = rs.compare_errors(ip.open_error, ip.loop_error, rank_batches=40)
     held = ctx.data.u[:, ip.input][ctx.split.val]
-    if np.sum(ip.open_error**2) <= G.PREDICTABLE * np.sum(held**2):
+    if G.own_past_predicts(float(np.sum(ip.open_error**2)), float(np.sum(held**2))):
         # predicted to the rank truncation and rounding: their ratio is no score
         cmp = replace(cmp, drop=0.0, p_value=1.0)
     h.score, h.drop_p = max(0.0, cmp.drop), cmp.p_value

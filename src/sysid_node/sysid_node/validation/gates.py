@@ -64,6 +64,12 @@ INPUT_LAGS = (4, 8, 16, 32)  # candidate numbers of the input's own lags (feedba
 #: the input's (a noise-free multisine: what is left is the least squares' rank truncation,
 #: residuals.RCOND, and rounding; nothing a loop could add to)
 PREDICTABLE = 1e-12
+
+
+def own_past_predicts(residual_ss: float, total_ss: float) -> bool:
+    """The input's own past predicts it: its residual sum of squares ``residual_ss`` is at most
+    PREDICTABLE of its sum of squares ``total_ss`` (no room for a loop, no score)."""
+    return residual_ss <= PREDICTABLE * total_ss
 #: Closed loop for the choice of the scored prediction: past innovations explain at least 10 %
 #: of the input's variance left by its own past (a model error that is a function of the input
 #: leaks a little into the innovations; a controller puts a large share there).
@@ -799,7 +805,7 @@ def conditional_granger(
         ss_f = float(np.sum((target - x_f @ rs.lstsq(x_f, target)) ** 2))
         q = x_f.shape[1] - x_r.shape[1]
         dof = target.size - x_f.shape[1]
-        if ss_r <= PREDICTABLE * float(np.sum(target**2)):  # its own past predicts it
+        if own_past_predicts(ss_r, float(np.sum(target**2))):
             out.append((0.0, 1.0, 0.0))
             continue
         f = ((ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
@@ -928,7 +934,7 @@ def input_prediction(
         ss_r, ss_f, _, _, ahead = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own], False)
         _, _, open_e, loop_e, _ = _shared_loop(u[:, j], x_r, x_l, pairs, own, scale[own])
         tot = float(sum(np.sum(u[est, j] ** 2) for est, _ in pairs))
-        if ss_r <= PREDICTABLE * tot:  # the input's own past predicts it: no room for a loop
+        if own_past_predicts(ss_r, tot):
             f, p, share = 0.0, 1.0, 0.0
         else:
             f = max(0.0, (ss_r - ss_f) / q) / max(ss_f / dof, 1e-300)
