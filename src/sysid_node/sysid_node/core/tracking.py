@@ -52,6 +52,8 @@ own standard deviations do not resolve (:meth:`ModeTracker._unresolved`).
 
 from __future__ import annotations
 
+import math
+import sys
 from collections import deque
 from dataclasses import dataclass, field, replace
 
@@ -102,6 +104,14 @@ RESOLVE_SIGMAS = 1.0
 SKIRT_DAMPING_SIGMAS = 1.96
 
 
+def _finite(x: float, nan: float = 0.0) -> float:
+    """``np.nan_to_num`` of a scalar (NaN -> ``nan``, +-inf -> +-the largest float) at a
+    fraction of its cost: the tracker calls it per track per update."""
+    if math.isnan(x):
+        return nan
+    return math.copysign(sys.float_info.max, x) if math.isinf(x) else x
+
+
 @dataclass
 class TrackedMode:
     """A physical mode followed across updates."""
@@ -140,6 +150,9 @@ class TrackedMode:
     confirmed_at: float = float("nan")
     #: (data time [s], median contribution) at its hits with full ``ranks`` (``_superseded``)
     rank_log: deque = field(default_factory=lambda: deque(maxlen=RANK_LOG), repr=False)
+    #: median of ``ranks``, kept by ``ModeTracker._hit`` (the only writer of ``ranks``): the
+    #: ranking, skirt and supersede rules read it many times per update
+    _rank: float = field(default=-np.inf, repr=False)
 
     def rank_at(self, t: float) -> float:
         """Median contribution at its last logged hit at or before ``t`` (NaN if none; the log
@@ -149,7 +162,7 @@ class TrackedMode:
     @property
     def rank(self) -> float:
         """Median contribution over the recent hits."""
-        return float(np.median(self.ranks)) if self.ranks else -np.inf
+        return self._rank
 
     @property
     def frequency_hz(self) -> float:
@@ -227,19 +240,33 @@ class ModeTracker:
             return 1.0
         return hits / len(q)
 
-    def _cost(self, tr: TrackedMode, md: ModalParameters) -> float:
-        # gate against the median of the recent raw estimates: one wild realization (e.g. while
-        # the data straddle an abrupt change) does not carry the track away
-        f0, z0 = tr.reference
-        f0 = max(f0, 1e-12)
-        cf = abs(md.frequency_hz - f0) / f0 / self.frequency_gate
-        cz = abs(md.damping_ratio - z0) / self.damping_gate
-        cm = 0.0
-        if np.size(md.shape) > 1 and np.size(tr.mode.shape) == np.size(md.shape):
-            cm = (1.0 - mac(tr.mode.shape, md.shape)) / max(1.0 - self.mac_gate, 1e-9)
-        if cf > 1 or cz > 1 or cm > 1:
-            return np.inf
-        return cf**2 + cz**2 + cm**2
+    def _costs(self, modes: list[ModalParameters]) -> np.ndarray:
+        """Gated match cost of every (track, mode) pair (inf outside a gate): squared frequency
+        (relative), damping and 1 - MAC distances over their gates. The reference is the median
+        of the track's recent raw estimates: one wild realization (e.g. while the data straddle
+        an abrupt change) does not carry the track away. The MAC counts where both shapes have
+        the same size, more than one component."""
+        ref = np.array([tr.reference for tr in self.tracks], float).reshape(-1, 2)
+        f0 = np.maximum(ref[:, :1], 1e-12)
+        f = np.array([md.frequency_hz for md in modes], float)
+        z = np.array([md.damping_ratio for md in modes], float)
+        cf = np.abs(f[None, :] - f0) / f0 / self.frequency_gate
+        cz = np.abs(z[None, :] - ref[:, 1:]) / self.damping_gate
+        cm = np.zeros_like(cf)
+        size_t = np.array([np.size(tr.mode.shape) for tr in self.tracks])
+        size_m = np.array([np.size(md.shape) for md in modes])
+        for n in set(size_m[size_m > 1].tolist()) & set(size_t.tolist()):
+            it, im = np.flatnonzero(size_t == n), np.flatnonzero(size_m == n)
+            a = np.array([np.asarray(self.tracks[k].mode.shape, complex) for k in it])
+            b = np.array([np.asarray(modes[k].shape, complex) for k in im])
+            den = np.outer(np.sum(np.abs(a) ** 2, axis=1), np.sum(np.abs(b) ** 2, axis=1))
+            num = np.abs(a.conj() @ b.T) ** 2
+            m = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+            cm[np.ix_(it, im)] = (1.0 - m) / max(1.0 - self.mac_gate, 1e-9)
+        with np.errstate(invalid="ignore"):
+            out = cf**2 + cz**2 + cm**2
+            out[(cf > 1) | (cz > 1) | (cm > 1)] = np.inf
+        return out
 
     def update(
         self, modes: list[ModalParameters], t: float, excited=None
@@ -254,7 +281,7 @@ class ModeTracker:
         matched: set[int] = set()
         duplicate: set[int] = set()
         if self.tracks and modes:
-            cost = np.array([[self._cost(tr, md) for md in modes] for tr in self.tracks])
+            cost = self._costs(modes)
             big = 1e6
             rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
             pairs = {int(r): int(c) for r, c in zip(rows, cols, strict=True)
@@ -414,7 +441,7 @@ class ModeTracker:
         c = np.array([tr.rank for tr in live])
         if not np.all(np.isfinite(c) & (f > 0)):
             return []
-        z_sd = np.array([np.nan_to_num(tr.mode.damping_std, nan=0.0) for tr in live])
+        z_sd = np.array([_finite(tr.mode.damping_std) for tr in live])
         peak = peak_over_floor(np.maximum(c, 0.0), z + SKIRT_DAMPING_SIGMAS * z_sd, f, 2 * np.pi)
         r = f[:, None] / f[None, :]  # (a, b): a's frequency over the neighbour b's
         skirt = (2 * z[None, :]) ** 2 / ((1 - r**2) ** 2 + (2 * z[None, :] * r) ** 2)
@@ -432,7 +459,7 @@ class ModeTracker:
         is tentative (status only). Most precise first: a track made tentative here does not
         judge others."""
         live = sorted((tr for tr in self.tracks if tr.status == "tracked"),
-                      key=lambda tr: (np.nan_to_num(tr.mode.frequency_std_hz, nan=np.inf), tr.id))
+                      key=lambda tr: (_finite(tr.mode.frequency_std_hz, np.inf), tr.id))
         kept: list[TrackedMode] = []
         out = []
         for tr in live:
@@ -490,20 +517,17 @@ class ModeTracker:
         tr.history.append((md.frequency_hz, md.damping_ratio))
         if first or tr.status == "lost":
             tr.window, tr.since, tr.established = deque(), t, False
-        recent = list(tr.history)[-self.reference_hits :]
-        tr.reference = (
-            float(np.median([h[0] for h in recent])),
-            float(np.median([h[1] for h in recent])),
-        )
+        f_ref, z_ref = np.median(list(tr.history)[-self.reference_hits :], axis=0)
+        tr.reference = (float(f_ref), float(z_ref))
         tr.hits += 1
         tr.streak += 1
         tr.last_seen = t
         tr.ranks.append(md.rank_key)
+        tr._rank = float(np.median(tr.ranks))
         if len(tr.ranks) == tr.ranks.maxlen:
             tr.rank_log.append((t, tr.rank))
         if self.report_hits > 1:  # robust to a stray realization (a burst in the data)
-            h = np.array(list(tr.history)[-self.report_hits :])
-            f, z = float(np.median(h[:, 0])), float(np.median(h[:, 1]))
+            f, z = np.median(list(tr.history)[-self.report_hits :], axis=0)
         else:
             a = 1.0 if first else self.smoothing
             f = tr.mode.frequency_hz + a * (md.frequency_hz - tr.mode.frequency_hz)
@@ -511,8 +535,8 @@ class ModeTracker:
         f_std, z_std = md.frequency_std_hz, md.damping_std
         if len(tr.history) >= 3:
             h = np.array(tr.history)
-            f_std = float(np.hypot(np.nan_to_num(f_std), np.std(h[:, 0], ddof=1)))
-            z_std = float(np.hypot(np.nan_to_num(z_std), np.std(h[:, 1], ddof=1)))
+            f_std = float(np.hypot(_finite(f_std), np.std(h[:, 0], ddof=1)))
+            z_std = float(np.hypot(_finite(z_std), np.std(h[:, 1], ddof=1)))
         tr.mode = replace(
             md,
             frequency_hz=float(f),
