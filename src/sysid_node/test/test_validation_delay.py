@@ -4,7 +4,6 @@ the delay scan and confirmed by the held-out trial (a drawn case of the hidden-e
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 from sysid_node.validation import diagnose as D
 from sysid_node.validation import gates as G
@@ -26,28 +25,30 @@ def test_a_delay_under_a_sweep_is_found_by_the_scan():
 
 
 def test_the_scan_realizes_the_dynamics_as_the_model_does():
-    """A baseline of dominant modes of a higher-order realization (``reduce_from``): the scan
-    realizing at the nominal order only found an unstable or worse fit at the true delay
-    (draw 11 of the suite: sweep, 2-sample delay; the old scan found no delay)."""
+    """Draw 11 of the suite (sweep, 2-sample delay): with a baseline of dominant modes of a
+    higher-order realization (``reduce_from``) the scan realizing at the nominal order only
+    found an unstable or worse fit at the true delay (the old scan found no delay). The
+    baseline refitted from its best start (``baseline.STARTS``) is a direct realization here,
+    which the undelayed refined fits cannot beat: the refined delays are fitted as the trial
+    fits them (from the delayed input's own realization too)."""
     seed = 1103011
     sc = S.draw("input_delay", seed, "sweep")
     assert sc.truth["samples"] == 2
     out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=False))
-    assert out.base.spec.reduce_from > out.base.spec.order
     ctx = G.Context(out.data, out.split, out.base, out.before, dict(out.data.signals))
     d = D.delay_estimate(ctx, out.base.spec, 0)
     assert d is not None and d == pytest.approx(2.0, abs=0.5)
 
 
 def test_a_delay_the_cheap_scan_misses_is_found_by_refined_fits():
-    """Without pole refinement the scan's fits at delays 0 and 2 are alike (draw 10 of the
-    suite: multisine, 2-sample delay); the model's own fit at the scan's best delays finds it."""
+    """Draw 10 of the suite (multisine, 2-sample delay): from the held-out choice's baseline
+    the scan's fits at delays 0 and 2 were alike without pole refinement and the model's own
+    fit at the scan's best delays found it; from the start the baseline is refitted from now
+    (``baseline.STARTS``) the cheap scan sees it too. Either way the estimate is 2 samples."""
     seed = 1103010
     sc = S.draw("input_delay", seed, "multisine")
     assert sc.truth["samples"] == 2
     out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=False))
     ctx = G.Context(out.data, out.split, out.base, out.before, dict(out.data.signals))
-    grid, errs, _ = G.delay_scan(ctx, out.base.spec, 0)
-    assert int(grid[np.argmin(errs)]) == 0  # the cheap scan alone finds no delay
     d = D.delay_estimate(ctx, out.base.spec, 0)
     assert d is not None and d == pytest.approx(2.0, abs=0.5)

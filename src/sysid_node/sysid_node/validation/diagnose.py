@@ -345,10 +345,13 @@ def _refined_delay(
     ctx: Context, spec: ModelSpec, grid: np.ndarray, errs: np.ndarray, tol: float
 ) -> float | None:
     """The scan found no delay: its :data:`REFINED_DELAYS` best non-zero delays are fitted as
-    the model is (poles refined on the free run, :func:`.models.fit`), the one that lowers the
-    estimation part's free-run error most beyond ``tol`` is kept. Without the pole refinement
-    a realization at the wrong delay and at the right one can fit alike (the scan's cheap fit),
-    where the refined fits differ. None if none lowers it."""
+    the trial fits them (:func:`_delay_refit`: poles refined on the free run, from the model's
+    realization and from the one the baseline's selection picks for the delayed input), the
+    one that lowers the estimation part's free-run error most beyond ``tol`` is kept. Without
+    the pole refinement a realization at the wrong delay and at the right one can fit alike
+    (the scan's cheap fit), where the refined fits differ; from the model's realization alone
+    a baseline refitted from its best of several starts (:data:`.baseline.STARTS`) is hard to
+    beat. None if none lowers it."""
     data, split = ctx.data, ctx.split
     base = estimation_cost(ctx.current, data, split)
     order = [j for j in np.argsort(errs) if grid[j] > 0 and np.isfinite(errs[j])]
@@ -356,8 +359,10 @@ def _refined_delay(
     for j in order[:REFINED_DELAYS]:
         d = round(spec.delay + float(grid[j]), 3)
         try:
-            fm = fit(spec.with_effect("input_delay", {"samples": d}), data, split, like=ctx.current)
+            fm, _ = _delay_refit(ctx, spec, "input_delay", {"samples": d})
         except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+            continue
+        if fm is None:
             continue
         c = estimation_cost(fm, data, split)
         if c < base * (1 - tol) and (best is None or c < best[1]):
