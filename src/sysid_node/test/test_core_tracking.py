@@ -346,3 +346,20 @@ def test_a_pole_present_half_the_time_is_neither_tracked_nor_established_by_a_ch
                         0.05 * k)
     assert {round(t.frequency_hz, 1): t.status for t in out} == {2.0: "tracked",
                                                                 7.3: "tentative"}
+
+
+def test_mac_matrix_is_mac_of_every_pair():
+    """The tracker's gated costs use modal.mac_matrix: the MAC of every row pair, 0 where a
+    shape is zero, as modal.mac."""
+    from sysid_node.core.modal import mac, mac_matrix
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(4, 3)) + 1j * rng.normal(size=(4, 3))
+    b = rng.normal(size=(5, 3)) + 1j * rng.normal(size=(5, 3))
+    b[2] = 0.0
+    m = mac_matrix(a, b)
+    assert m.shape == (4, 5)
+    for i in range(4):
+        for j in range(5):
+            assert m[i, j] == pytest.approx(mac(a[i], b[j]), abs=1e-12)
+    assert np.all(m[:, 2] == 0.0)

@@ -84,6 +84,13 @@ def mac(a: np.ndarray, b: np.ndarray) -> float:
     return float(abs(np.vdot(a, b)) ** 2 / den) if den > 0 else 0.0
 
 
+def mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`mac` of every row of ``a`` (K, l) with every row of ``b`` (J, l): (K, J)."""
+    den = np.outer(np.sum(np.abs(a) ** 2, axis=1), np.sum(np.abs(b) ** 2, axis=1))
+    num = np.abs(a.conj() @ b.T) ** 2
+    return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+
+
 def mpc(shapes: np.ndarray) -> np.ndarray:
     """Modal phase collinearity of each column of ``shapes`` (l, K): ((s1 - s2) / (s1 + s2))^2
     with s1, s2 the eigenvalues of the 2 x 2 second moment of (Re, Im); 1 for a real (normal

@@ -60,7 +60,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .modal import ModalParameters, mac, peak_over_floor
+from .modal import ModalParameters, mac, mac_matrix, peak_over_floor
 
 STATUSES = ("tentative", "tracked", "lost")
 #: A split pole in a track's gate with this many times the contribution of the pole nearest
@@ -259,10 +259,7 @@ class ModeTracker:
             it, im = np.flatnonzero(size_t == n), np.flatnonzero(size_m == n)
             a = np.array([np.asarray(self.tracks[k].mode.shape, complex) for k in it])
             b = np.array([np.asarray(modes[k].shape, complex) for k in im])
-            den = np.outer(np.sum(np.abs(a) ** 2, axis=1), np.sum(np.abs(b) ** 2, axis=1))
-            num = np.abs(a.conj() @ b.T) ** 2
-            m = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
-            cm[np.ix_(it, im)] = (1.0 - m) / max(1.0 - self.mac_gate, 1e-9)
+            cm[np.ix_(it, im)] = (1.0 - mac_matrix(a, b)) / max(1.0 - self.mac_gate, 1e-9)
         with np.errstate(invalid="ignore"):
             out = cf**2 + cz**2 + cm**2
             out[(cf > 1) | (cz > 1) | (cm > 1)] = np.inf
