@@ -96,7 +96,7 @@ import math
 import numpy as np
 from scipy import optimize, stats
 
-from .modal import ModalParameters, mac
+from .modal import ModalParameters, mac_matrix
 
 #: Relative frequency change allowed between model orders (Peeters & De Roeck 1999).
 STABLE_FREQUENCY_TOL = 0.01
@@ -310,11 +310,15 @@ class Persistence:
         ref = np.array([np.median(fr) for fr, _ in self._runs])
         f = np.array([md.frequency_hz for md in cand])
         cost = np.abs(f[:, None] / ref[None, :] - 1.0) / self.frequency_tol
-        for k, md in enumerate(cand):
-            for j, (_, shape) in enumerate(self._runs):
-                if (np.size(md.shape) > 1 and np.size(shape) == np.size(md.shape)
-                        and mac(md.shape, shape) < self.mac_gate):
-                    cost[k, j] = np.inf
+        size_c = np.array([np.size(md.shape) for md in cand])
+        size_r = np.array([np.size(shape) for _, shape in self._runs])
+        for n in set(size_c[size_c > 1].tolist()) & set(size_r.tolist()):
+            ic, ir = np.flatnonzero(size_c == n), np.flatnonzero(size_r == n)
+            a = np.array([np.ravel(cand[k].shape).astype(complex) for k in ic])
+            b = np.array([np.ravel(self._runs[j][1]).astype(complex) for j in ir])
+            block = cost[np.ix_(ic, ir)]
+            block[mac_matrix(a, b) < self.mac_gate] = np.inf
+            cost[np.ix_(ic, ir)] = block
         ok = np.isfinite(cost) & (cost <= 1.0)
         rows, cols = optimize.linear_sum_assignment(np.where(ok, cost, 1e6))
         return {int(r): int(c) for r, c in zip(rows, cols, strict=True) if ok[r, c]}
