@@ -51,12 +51,16 @@ def main() -> None:
     wall = time.perf_counter() - t0
     sm = S.summary(results)
     print(S.confusion_table(results))
-    print(f"\n{'effect':22s} {'cases':>5s} {'right first':>12s} {'median drop':>12s}")
+    print(f"\n{'effect':22s} {'cases':>5s} {'right first':>12s} {'median drop':>12s} "
+          f"{'median size':>12s} {'short of size':>14s}")
     for eff, row in sm["effects"].items():
         print(
             f"{eff:22s} {row['cases']:5d} {100 * row['right_first']:11.0f}% "
-            f"{100 * row['median_drop']:11.0f}%"
+            f"{100 * row['median_drop']:11.0f}% {row['median_size']:12.1f} "
+            f"{row['short_of_size']:14d}"
         )
+    print("(size: x the output noise, the disturbance's response + the measurement noise; short "
+          "of size: under 90 % of the size drawn, the strength at its bound)")
     if args.ceiling:
         print(f"\n{'effect':22s} {'median ceiling':>15s} {'detectable':>11s} "
               f"{'right first of them':>20s} {'their median drop':>18s}")

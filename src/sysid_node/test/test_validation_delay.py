@@ -10,10 +10,13 @@ from sysid_node.validation import gates as G
 from sysid_node.validation import suite as S
 from sysid_node.validation.workflow import Options, run_validation
 
+#: the draws as the suite made them before round 32 (sized against the measurement noise)
+MEASUREMENT = "measurement_noise"
+
 
 def test_a_delay_under_a_sweep_is_found_by_the_scan():
     seed = 1103003  # input_delay draw 3 of the suite: sweep input, 2-sample delay
-    sc = S.draw("input_delay", seed, "sweep")
+    sc = S.draw("input_delay", seed, "sweep", size_against=MEASUREMENT)
     assert sc.truth["samples"] == 2
     out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
     xc = out.before.xcorr

@@ -5,10 +5,16 @@ The nominal structure is drawn like :func:`.draw.draw_structure` (1-3 modes, one
 output by default), driven by a measured excitation (white, coloured, multisine or sweep) plus
 an unmeasured disturbance at the input (``process_noise`` x its RMS). The effect's size is the
 RMS of what it changes in the noise-free output, ``e = y_with - y_without``, over the RMS of the
-output noise; it is drawn in 2-20 and reached by scaling the effect's strength (exactly for the
-linear effects, by a few secant steps for the others: ``truth["size"]`` is the size reached,
-``truth["target_size"]`` the size drawn; they can differ when the strength hits its bounds,
-e.g. a slow LPV mode in a short record, or a very stiff cubic spring).
+output noise ``v``: everything in the output the measured input does not explain (Ljung's
+``y = G u + v``), i.e. the response ``y_w`` to the unmeasured disturbance plus the measurement
+noise, pooled over the outputs (:meth:`_Base.size`). That is the floor the validation error of
+a perfect linear model sees; sized against the measurement noise alone (a median 2.6x smaller)
+most effects sat near it. The size is drawn in 2-20 and reached by scaling the effect's
+strength (exactly for the linear effects, by a few secant steps for the others:
+``truth["size"]`` is the size reached, ``truth["target_size"]`` the size drawn; they can differ
+when the strength hits its bounds, e.g. a slow LPV mode in a short record, a very stiff cubic
+spring, or a delay that cannot change the output by more than about twice its RMS).
+``truth["size_vs_measurement_noise"]`` is the reached size over the measurement noise alone.
 Every record carries two slow candidate signals at 10 Hz, ``/airspeed`` [m/s] and
 ``/rotor_speed`` [Hz]: the scheduling / rotating-speed source when the effect has one, else
 distractors.
@@ -65,16 +71,35 @@ class _Base:
     kind: str
     y_u: np.ndarray  # response to u
     y_w: np.ndarray  # response to w
-    noise_std: np.ndarray  # (outputs,)
+    noise_std: np.ndarray  # (outputs,) of the measurement noise
     fraction: float
     band: tuple[float, float]
+    against_measurement: bool = False  # size() against the measurement noise alone
 
     @property
     def y(self) -> np.ndarray:
         return self.y_u + self.y_w
 
-    def size(self, e: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(e**2)) / np.sqrt(np.mean(self.noise_std**2)))
+    def output_noise_rms(self, y_w: np.ndarray | None = None) -> np.ndarray:
+        """(outputs,) RMS of the output noise v = y_w + measurement noise (Ljung's v in
+        y = G u + v; independent parts: their mean squares add); ``y_w``: the response to the
+        record's own disturbance when it is not the base's (feedback's)."""
+        y_w = self.y_w if y_w is None else y_w
+        return np.sqrt(np.mean(y_w**2, axis=0) + self.noise_std**2)
+
+    def size(self, e: np.ndarray, y_w: np.ndarray | None = None) -> float:
+        """RMS of the change ``e`` over the RMS of the output noise (pooled over outputs)."""
+        if self.against_measurement:
+            return self.size_vs_measurement_noise(e)
+        return _rms_ratio(e, self.output_noise_rms(y_w))
+
+    def size_vs_measurement_noise(self, e: np.ndarray) -> float:
+        """RMS of ``e`` over the measurement noise's alone (the suite's size before round 32)."""
+        return _rms_ratio(e, self.noise_std)
+
+
+def _rms_ratio(e: np.ndarray, noise_rms: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2)) / np.sqrt(np.mean(noise_rms**2)))
 
 
 def _draw_base(rng, fs, n_modes, n_outputs, excitation_kind, duration_s, noise, damping,
@@ -117,14 +142,20 @@ def _secant(size_of, p0: float, target: float, low: float, high: float, steps: i
     returns (p, size, extra) of the best step (size_of returns (size, extra))."""
     p = float(np.clip(p0, low, high))
     best = None
+
+    def miss(size: float) -> float:
+        return abs(np.log(max(size, 1e-12) / target)) if np.isfinite(size) else np.inf
+
     for _ in range(steps):
         size, extra = size_of(p)
-        if best is None or abs(np.log(max(size, 1e-12) / target)) < abs(
-                np.log(max(best[1], 1e-12) / target)):
+        if best is None or miss(size) < miss(best[1]):
             best = (p, size, extra)
         if size <= 0 or abs(size / target - 1) < 0.05:
             break
-        p = float(np.clip(p * target / size, low, high))
+        if np.isfinite(size):
+            p = float(np.clip(p * target / size, low, high))
+        else:  # a diverging simulation: halfway (in log) to the best finite strength, or weaker
+            p = float(np.sqrt(p * best[0]) if np.isfinite(best[1]) else max(low, 0.25 * p))
     return best
 
 
@@ -157,13 +188,15 @@ def draw_hidden_effect(
     output: str = "acceleration",
     process_noise: float = 0.1,
     min_delay_samples: float = 0.05,
+    size_against: str = "output_noise",
 ) -> EffectScenario:
     """A record of a drawn structure with the hidden ``effect`` (one of ``effects.EFFECTS``;
     None: no effect, see :func:`draw_clean`).
 
     Draws (unless given): ``fs`` 100-1000 Hz, 1-3 modes in [max(0.5 Hz, fs / 200), 0.3 fs],
-    damping 0.5-5 %, the excitation kind, output noise 2-5 %, the effect ``size`` 2-20 and the
-    effect's parameters (``truth``):
+    damping 0.5-5 %, the excitation kind, measurement noise 2-5 % of the output's RMS, the
+    effect ``size`` 2-20 (x the RMS of the output noise v = y_w + measurement noise, see the
+    module) and the effect's parameters (``truth``):
 
     * missing_mode: ``frequency_hz``, ``damping`` of an extra mode in [band low / 2, 0.4 fs];
     * periodic_disturbance: ``source`` /rotor_speed, ``harmonics`` (1-2 of 1, 2, 3),
@@ -178,12 +211,20 @@ def draw_hidden_effect(
       displacements seen by output 0;
     * sensor_bias: ``offset``, ``drift_per_s`` (per output);
     * feedback: ``lag`` 1-3 samples, ``gain`` (u = r - gain y(t - lag)), ``gain_margin``
-      (stable-gain limit / gain); the unmeasured disturbance is 1-5 x the reference.
+      (stable-gain limit / gain); the unmeasured disturbance is 1-5 x the reference, so the
+      output noise is mostly its response and a stable loop (gain at most 0.7 of the limit)
+      changes the output by about that much: most loops sit at that bound, size ~1.
+
+    ``size_against="measurement_noise"``: the size against the measurement noise alone (the
+    generator before round 32; the records some regression tests were written on).
     """
+    if size_against not in ("output_noise", "measurement_noise"):
+        raise TypeError(f"size_against: output_noise or measurement_noise, not {size_against!r}")
     if effect is not None and effect not in E.EFFECTS:
         raise ValueError(f"unknown effect {effect!r}; one of {', '.join(E.EFFECTS)}")
     b = _draw_base(rng, fs, n_modes, n_outputs, excitation_kind, duration_s, noise, damping,
                    output, process_noise)
+    b.against_measurement = size_against == "measurement_noise"
     if effect is None:
         return _finish(rng, b, None, b.y, b.u, _distractors(rng, b.t), {})
     target = float(_log_uniform(rng, 2.0, 20.0)) if size is None else float(size)
@@ -280,15 +321,21 @@ def draw_hidden_effect(
         y_lin = simulate(system, drive, fs)
 
         def size_of(k3: float):
-            with np.errstate(over="ignore", invalid="ignore"):
-                y_nl = E.simulate_cubic_stiffness(system, drive, fs, k3, spring, substeps)
-            if not np.all(np.isfinite(y_nl)):  # too stiff for the step: a weaker spring
-                return np.inf, y_nl
-            return b.size(y_nl - y_lin), y_nl
+            # the hardening spring raises the frequency with the amplitude: a Runge-Kutta step
+            # that diverges is refined; still diverging at 8x the linear step count: too stiff
+            # (or unstable: the spring acts where the input does, not on its own deflection),
+            # a weaker spring (_secant)
+            for refine in (1, 2, 4, 8):
+                with np.errstate(over="ignore", invalid="ignore"):
+                    y_nl = E.simulate_cubic_stiffness(system, drive, fs, k3, spring,
+                                                      refine * substeps)
+                if np.all(np.isfinite(y_nl)):
+                    return b.size(y_nl - y_lin), y_nl
+            return np.inf, y_nl
 
         substeps = int(np.ceil(4 * np.pi * st.frequencies_hz.max() / fs))
         k0 = target / max(b.size(first), 1e-300)
-        k3, _, y_nl = _secant(size_of, k0, target, k0 * 1e-3, k0 * 10, steps=3)
+        k3, _, y_nl = _secant(size_of, k0, target, k0 * 1e-3, k0 * 10, steps=4)
         y = y_nl
         truth.update(channel=0, cubic=k3)
     elif effect == "sensor_bias":
@@ -316,14 +363,17 @@ def draw_hidden_effect(
             lo, hi = (mid, hi) if loop_is_stable(system, negative(mid), lag) else (lo, mid)
         g_max = lo
         y_open = simulate(system, b.u + w, fs) + v
+        y_w = simulate(system, w, fs)  # the output noise is this record's: G w + v
 
         def size_of(g: float):
             yc, uc = simulate_closed_loop(system, negative(g), b.u, w=w, v=v, delay=lag)
-            return b.size(yc - y_open), (yc, uc)
+            return b.size(yc - y_open, y_w), (yc, uc)
 
         gain, reached, (y, u) = _secant(size_of, 0.2 * g_max, target, 1e-6 * g_max, 0.7 * g_max,
                                         steps=6)
-        truth.update(lag=lag, gain=gain, gain_margin=g_max / gain, size=reached)
+        truth.update(lag=lag, gain=gain, gain_margin=g_max / gain, size=reached,
+                     size_vs_measurement_noise=b.size_vs_measurement_noise(y - y_open))
         return _finish(rng, b, effect, y, u, signals, truth, add_noise=False)
     truth["size"] = b.size(y - b.y)
+    truth["size_vs_measurement_noise"] = b.size_vs_measurement_noise(y - b.y)
     return _finish(rng, b, effect, y, u, signals, truth)
