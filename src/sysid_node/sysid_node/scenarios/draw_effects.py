@@ -219,7 +219,7 @@ def draw_hidden_effect(
     generator before round 32; the records some regression tests were written on).
     """
     if size_against not in ("output_noise", "measurement_noise"):
-        raise TypeError(f"size_against: output_noise or measurement_noise, not {size_against!r}")
+        raise ValueError(f"size_against: output_noise or measurement_noise, not {size_against!r}")
     if effect is not None and effect not in E.EFFECTS:
         raise ValueError(f"unknown effect {effect!r}; one of {', '.join(E.EFFECTS)}")
     b = _draw_base(rng, fs, n_modes, n_outputs, excitation_kind, duration_s, noise, damping,
