@@ -23,7 +23,10 @@ draw (``DrawResult``):
 
 ``ceiling_3s`` (output-only draws; NaN with a measured input): :func:`ambient_ceiling` at the
 data time ``found_by_3s`` is judged at: the chance that an efficient estimator has every mode
-within 2 % there. Its mean over the output-only draws is what ``found_by_3s`` can reach on them.
+within 2 % there, from the asymptotic bound. ``realistic_3s``: :func:`ambient_realistic`, the
+same with the wider scatter an efficient fit of a record a few decay times long has (calibrated
+on simulated single-mode records). Both are upper bounds of what ``found_by_3s`` can reach on
+the output-only draws: close, weak and colour-driven modes lower it further.
 """
 
 from __future__ import annotations
@@ -71,6 +74,7 @@ class DrawResult:
     estimates: int
     kept_share: float = math.nan
     ceiling_3s: float = math.nan
+    realistic_3s: float = math.nan
 
 
 def ambient_ceiling(modes: list[tuple[float, float]], data_s: float, tol: float = RIGHT_TOL
@@ -85,6 +89,33 @@ def ambient_ceiling(modes: list[tuple[float, float]], data_s: float, tol: float 
     p = 1.0
     for f, zeta in modes:
         sigma = math.sqrt(zeta / (2.0 * math.pi * f * data_s))
+        p *= math.erf(tol / (sigma * math.sqrt(2.0)))
+    return p
+
+
+#: Widening of an efficient fit's frequency scatter over :func:`ambient_ceiling`'s sd on a
+#: record of x = zeta 2 pi f T decay times: sd x sqrt(WIDENING_INF**2 + WIDENING_SHORT / x).
+#: Least squares fit to the shares within 1, 2 and 3 sd of prediction-error fits (true-order
+#: innovation model, started from the true Kalman predictor) of simulated single-mode ambient
+#: records: T = 4 s, fs = 5 f, 5 % output noise, the three sensor kinds in turn, zeta 0.2-5 %,
+#: x 0.25-30, 150 records at each of 24 points (rms error of the shares 0.04; the bound alone
+#: is 0.09-0.23 too high at x <= 1). Not fitted on the suite's draws. WIDENING_INF: the
+#: innovation model's free numerator and the noise cost even a long record about 17 %.
+WIDENING_INF = 1.17
+WIDENING_SHORT = 0.38
+
+
+def ambient_realistic(modes: list[tuple[float, float]], data_s: float, tol: float = RIGHT_TOL
+                      ) -> float:
+    """:func:`ambient_ceiling` with each mode's sd widened as an efficient fit of a short
+    ambient record scatters (``WIDENING_INF``, ``WIDENING_SHORT``): the chance that every mode
+    of ``modes`` is within ``tol`` from ``data_s`` seconds of data. Still optimistic for close
+    modes, modes weak on every output and colour-driven modes (single-mode calibration)."""
+    p = 1.0
+    for f, zeta in modes:
+        x = zeta * 2.0 * math.pi * f * data_s
+        sigma = math.sqrt(zeta / (2.0 * math.pi * f * data_s)) * math.sqrt(
+            WIDENING_INF**2 + WIDENING_SHORT / x)
         p *= math.erf(tol / (sigma * math.sqrt(2.0)))
     return p
 
@@ -195,6 +226,8 @@ def score(scn, recs: list[EstimateRecord], seed: int = -1) -> DrawResult:
         kept_share=kept,
         ceiling_3s=ambient_ceiling(scn.modes_at(start + BY_S), start + BY_S)
         if scn.output_only and np.isfinite(start) else math.nan,
+        realistic_3s=ambient_realistic(scn.modes_at(start + BY_S), start + BY_S)
+        if scn.output_only and np.isfinite(start) else math.nan,
     )
 
 
@@ -228,4 +261,5 @@ def summary(results: list[DrawResult]) -> dict[str, float]:
         "output_only_found_2pct_by_3s": mean([float(r.found_by_3s) for r in results
                                               if r.output_only]),
         "output_only_ceiling_3s": mean([r.ceiling_3s for r in results if r.output_only]),
+        "output_only_realistic_3s": mean([r.realistic_3s for r in results if r.output_only]),
     }
