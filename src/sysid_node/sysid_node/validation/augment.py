@@ -152,6 +152,16 @@ def rotor_phase(f_hz: np.ndarray, fs: float) -> np.ndarray:
     return 2 * np.pi * np.concatenate([[0.0], np.cumsum(inc)])
 
 
+def rotating_signals(signals: dict[str, np.ndarray], fs: float) -> list[str]:
+    """Signals that can be a rotating speed [Hz]: positive, below Nyquist, not too variable."""
+    out = []
+    for name, s in signals.items():
+        m = float(np.mean(s))
+        if 0.05 < m < 0.5 * fs and np.all(s > 0) and np.std(s) < 0.5 * m:
+            out.append(name)
+    return out
+
+
 def harmonic_regressors(data: ValidationData, h: dict) -> np.ndarray:
     """cos/sin(k phi) columns for one harmonic set (rotor-driven or fixed frequency)."""
     if h.get("source"):

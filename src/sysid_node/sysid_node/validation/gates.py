@@ -35,7 +35,7 @@ from scipy import signal, stats
 
 from . import residuals as rs
 from .assess import RANK_BATCHES, Assessment, compare_primary, primary_error
-from .augment import rotor_phase
+from .augment import rotating_signals, rotor_phase
 from .data import ValidationData, ValidationError
 from .models import (
     TIME_SIGNAL,
@@ -222,13 +222,8 @@ def sensor_bias(ctx: Context) -> Hypothesis:
 
 # ------------------------------------------------------------------ periodic_disturbance
 def rotating_candidates(ctx: Context) -> list[str]:
-    """Signals that can be a rotating speed [Hz]: positive, below Nyquist, not too variable."""
-    out = []
-    for name, s in ctx.signals.items():
-        m = float(np.mean(s))
-        if 0.05 < m < 0.5 * ctx.data.fs and np.all(s > 0) and np.std(s) < 0.5 * m:
-            out.append(name)
-    return out
+    """Signals that can be a rotating speed [Hz] (:func:`.augment.rotating_signals`)."""
+    return rotating_signals(ctx.signals, ctx.data.fs)
 
 
 def harmonic_test(e: np.ndarray, phi: np.ndarray, orders=(1, 2, 3, 4)) -> tuple:
