@@ -35,3 +35,14 @@ def test_a_rotor_harmonic_the_baseline_imitates_with_a_pole_pair_is_tried_too():
     assert out.added[:1] == ["periodic_disturbance"]
     assert out.error_drop > MIN_DROP
 
+
+@pytest.mark.slow
+def test_a_trial_unstable_at_the_baselines_horizon_is_realized_at_the_selections():
+    # draw 12 (white): harmonic 1 of /rotor_speed (23.1 Hz) held by a baseline pole pair at
+    # 23.4 Hz; with the line out, the baseline's 20 block rows realize an unstable real pole
+    # (before: "trial re-fit is unstable", nothing ranked first)
+    sc, out = _validated(1101012)
+    top = out.hyps[0]
+    assert top.effect == "periodic_disturbance" and top.significant
+    assert out.added[:1] == ["periodic_disturbance"]
+    assert out.error_drop > MIN_DROP

@@ -21,7 +21,7 @@ import numpy as np
 from . import gates as G
 from . import residuals as rs
 from .assess import Assessment, compare_primary, primary_error
-from .augment import ModelSpec
+from .augment import ModelSpec, regressors
 from .baseline import rank_realizations
 from .data import ValidationData, ValidationError
 from .gates import Context, Hypothesis
@@ -159,8 +159,30 @@ def _delay_refit(
     delayed input; the lower estimation free-run error is kept. The model's horizon was
     chosen for the undelayed input, whose subspace realization may have traded a mode for
     the delay's phase; the delayed input's realization need not."""
-    fm, why = _refit(ctx, spec, effect, params)
     alt = _delayed_realization(ctx, spec, float(params["samples"]))
+    return _better_refit(ctx, spec, alt, effect, params)
+
+
+def _periodic_refit(
+    ctx: Context, spec: ModelSpec, effect: str, params: dict
+) -> tuple[FittedModel | None, str]:
+    """The periodic structure re-fitted as the model is and, when it differs, with the
+    realization the baseline's selection picks for the output with the harmonics taken out
+    (least squares on the estimation samples, as :func:`.models.fit` starts); the lower
+    estimation free-run error is kept. The model's horizon was chosen for the output with
+    the lines, which its realization may have spent states on (a pole pair on a line); with
+    the lines out that horizon can realize an unstable pole or miss a mode (suite draws
+    1101012, 1101036) where the one chosen for the output without them does not."""
+    alt = _cleaned_realization(ctx, spec, effect, params)
+    return _better_refit(ctx, spec, alt, effect, params)
+
+
+def _better_refit(
+    ctx: Context, spec: ModelSpec, alt: ModelSpec | None, effect: str, params: dict
+) -> tuple[FittedModel | None, str]:
+    """``effect`` re-fitted with ``spec`` and with ``alt`` (None: ``spec`` only); of the stable
+    re-fits the one with the lower estimation free-run error."""
+    fm, why = _refit(ctx, spec, effect, params)
     if alt is None:
         return fm, why
     fm2, why2 = _refit(ctx, alt, effect, params)
@@ -197,8 +219,40 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
     return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from, decimate=c.decimate)
 
 
+def _cleaned_realization(
+    ctx: Context, spec: ModelSpec, effect: str, params: dict
+) -> ModelSpec | None:
+    """``spec`` with the horizon and realization the baseline's selection picks at the
+    structure's order for the output less the least-squares fit of the additive regressors
+    ``effect`` brings (:func:`.augment.regressors`); None when they are the spec's own, there
+    are no regressors or no linear free run."""
+    data = ctx.data
+    if not data.n_inputs or ctx.assessment.primary != "free_run" or not is_plain(ctx.current):
+        return None
+    try:
+        phi = regressors(spec.with_effect(effect, params), data)
+        if phi is None:
+            return None
+        est = ctx.split.est
+        y = data.y - phi @ rs.lstsq(phi[est], data.y[est])
+        cleaned = replace(data, y=y, u=shift(data.u, spec.delay))
+        _, ranked, _, _ = rank_realizations(
+            cleaned, ctx.split, spec.order + spec.extra_order, None, "free_run"
+        )
+    except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    if not ranked:
+        return None
+    c = ranked[0]
+    if (c.block_rows, c.reduce_from, c.decimate) == (
+        spec.block_rows, spec.reduce_from, spec.decimate
+    ):
+        return None
+    return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from, decimate=c.decimate)
+
+
 #: Effects whose trial re-fit is more than :func:`_refit` (same signature).
-_REFITS = {"input_delay": _delay_refit}
+_REFITS = {"input_delay": _delay_refit, "periodic_disturbance": _periodic_refit}
 
 
 def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> None:
