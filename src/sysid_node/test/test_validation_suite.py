@@ -43,7 +43,9 @@ from sysid_node.validation import suite as S
 #: rank threshold, 1106005's loop fit converges: subset 2 -> 3). Round 32 (sizes against the
 #: output noise; benchmarks/validate_suite.py --failures --ceiling): missing_mode 14,
 #: periodic_disturbance 9, parameter_varying 11, input_delay 13, nonlinear_stiffness 10,
-#: sensor_bias 14, feedback 10; periodic_disturbance 13 after the baseline leaves lines out.
+#: sensor_bias 14, feedback 10; periodic_disturbance 13 after the baseline leaves lines out, 15
+#: after round 33 (the periodic trial also takes the rotor harmonics the model's poles hold and
+#: is re-fitted at the horizon selected for the output without the lines).
 RIGHT_FIRST_MEASURED = {
     "missing_mode": 6,
     "periodic_disturbance": 6,

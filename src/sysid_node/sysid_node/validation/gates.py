@@ -8,7 +8,8 @@ missing_mode           narrow-band residual peak above the 99.9 % noise-floor bo
                        with the input away from the model's modes (whole record on an
                        interleaved split)
 periodic_disturbance   harmonics of a candidate rotating speed (or a fixed line) explaining
-                       residual variance (F-test)
+                       residual variance (F-test); the harmonics the model holds with a pole
+                       pair (no line left in its error) are alternatives of the trial
 parameter_varying      residual power depending on a candidate scheduling signal (F-test)
 input_delay            residual correlated with past inputs (cross-correlation portmanteau), or a
                        delayed input lowering the estimation free-run error (delay scan)
@@ -252,6 +253,13 @@ def harmonic_test(e: np.ndarray, phi: np.ndarray, orders=ROTOR_ORDERS) -> tuple:
     return pval, r2, sig
 
 
+def _held_harmonics(ctx: Context, rotor_f: float) -> list[int]:
+    """Harmonics k of :data:`ROTOR_ORDERS` of a rotating speed of mean ``rotor_f`` [Hz] with a
+    mode of the model within the gate's 3 % of k rotor_f."""
+    return [k for k in ROTOR_ORDERS if any(
+        abs(f - k * rotor_f) < 0.03 * k * rotor_f for f in ctx.model_freqs)]
+
+
 def periodic_disturbance(ctx: Context) -> tuple[Hypothesis, list, list]:
     """Harmonics of a rotating speed, or a fixed line; also sorts the residual spectrum's
     peaks into lines and mode-like peaks (returned for :func:`missing_mode`)."""
@@ -259,12 +267,14 @@ def periodic_disturbance(ctx: Context) -> tuple[Hypothesis, list, list]:
     h = Hypothesis("periodic_disturbance")
     best = None
     cands = rotating_candidates(ctx)
+    held = {}  # harmonics of each candidate the model holds with a pole pair (no line left)
     for name in cands:
         phi = rotor_phase(ctx.signals[name], fs)[ctx.split.val]
         for c in range(e.shape[1]):
             p, r2, sig = harmonic_test(e[:, c], phi)
             if best is None or p < best[0]:
                 best = (p, r2, sig, name, c)
+        held[name] = _held_harmonics(ctx, float(np.mean(ctx.signals[name])))
     rotor_f = None
     if best is not None and best[2]:
         p, r2, sig, name, c = best
@@ -275,12 +285,18 @@ def periodic_disturbance(ctx: Context) -> tuple[Hypothesis, list, list]:
             f"harmonics {sig} of {name} (mean {rotor_f:.4g} Hz) explain {100 * r2:.1f} % of the "
             f"ch{c} residual variance (F-test p={p:.1e})"
         )
-        # a harmonic the model imitates with a pole pair leaves no line in its error: the
-        # trial with it too is an alternative (:func:`.diagnose.confirm` keeps the better)
-        held = [k for k in ROTOR_ORDERS if k not in sig and any(
-            abs(f - k * rotor_f) < 0.03 * k * rotor_f for f in ctx.model_freqs)]
-        if held:
-            h.alternatives = [{**h.parameters, "harmonics": sorted(sig + held)}]
+    # a harmonic the model imitates with a pole pair leaves no line in its error: the trials
+    # with it too are alternatives (:func:`.diagnose.confirm` keeps the best; tried when the
+    # gate fires or the model fails)
+    for name, ks in held.items():
+        if name == h.parameters.get("source"):
+            sig = h.parameters["harmonics"]
+            if set(ks) - set(sig):
+                h.alternatives.append({**h.parameters, "harmonics": sorted(set(sig) | set(ks))})
+        elif ks:
+            h.alternatives.append(
+                {"source": name, "harmonics": ks, "frequency_hz": float(np.mean(ctx.signals[name]))}
+            )
     lines, mode_peaks = [], []
     for pk in residual_peaks(ctx):
         if rotor_f is not None and any(
@@ -300,6 +316,12 @@ def periodic_disturbance(ctx: Context) -> tuple[Hypothesis, list, list]:
         h.evidence = (
             f"a line at {f1:.4g} Hz on ch{pk.channel} ({pk.ratio:.0f}x the noise floor); one "
             f"sinusoid explains {100 * frac:.0f} % of the band power"
+        )
+    if not h.parameters and h.alternatives:  # tried only when the model fails
+        h.parameters = h.alternatives.pop(0)
+        h.evidence = (
+            f"no residual line; the model has pole pairs at harmonics {h.parameters['harmonics']} "
+            f"of {h.parameters['source']} (mean {h.parameters['frequency_hz']:.4g} Hz)"
         )
     if not h.parameters:
         h.evidence = "no residual line and no harmonics of a candidate rotating speed"
