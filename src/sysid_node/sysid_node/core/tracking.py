@@ -61,6 +61,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from .modal import ModalParameters, mac, mac_matrix, peak_over_floor
+from .spurious import CHECK_ORDER_STEPS
 
 STATUSES = ("tentative", "tracked", "lost")
 #: A split pole in a track's gate with this many times the contribution of the pole nearest
@@ -102,6 +103,24 @@ RESOLVE_SIGMAS = 1.0
 #: estimate 0.127 -> 0.121 on the 52-draw suite (seeds 0-51), 0.147 -> 0.138 on seeds 52-151,
 #: no other figure of either moved (1, 2 and 4 sd: 0.140 / 0.138 / 0.134 on 52-151).
 SKIRT_DAMPING_SIGMAS = 1.96
+#: A young tracked mode whose contribution is below this share of the strongest tracked one's,
+#: and that most of its recent realizations did not find in every check order (FAINT_ORDERS),
+#: is faint (:meth:`ModeTracker._faint`). The spare pole pairs of an over-sized realization fit
+#: what the model of the dominant modes leaves unexplained: per draw, the median contribution of
+#: the false tracked modes grows with the strongest mode's (log-log slope 0.82 on the random
+#: suite, seeds 0-51, 0.97 on seeds 52-151). Calibrated on the suite (seeds 0-51) by replay of
+#: the tracker's recorded inputs: 0.02 / 0.03 / 0.05 lower the false tracked modes per estimate
+#: 0.121 -> 0.116 / 0.113 / 0.110 with found-by-3s, kept and the median pickup unmoved by 0.02
+#: and 0.03, while 0.05 slows the median pickup (1.065 -> 1.091 s: an appearing mode is young
+#: and weak too); checked on seeds 52-151: 0.138 -> 0.108, draws with more than 2 false
+#: tracked modes in an estimate 7 -> 3, found-by-3s, settled and the median pickup unmoved.
+FAINT_SHARE = 0.03
+#: Share of a track's recent hits (its ``history``) in which the realization found it in every
+#: check order (``ModalParameters.stable_orders``; spurious.py test 1 allows one miss) below
+#: which a weak young track is faint: a physical mode stays put as the order changes, a noise
+#: pole moves (suite seeds 0-51, output-only: median share 1.0 for the true tracked modes, 0.65
+#: for the false ones; with 0.5 instead of 0.75 the check set keeps 4 draws above 2, not 3).
+FAINT_ORDERS = 0.75
 
 
 def _finite(x: float, nan: float = 0.0) -> float:
@@ -153,6 +172,8 @@ class TrackedMode:
     #: median of ``ranks``, kept by ``ModeTracker._hit`` (the only writer of ``ranks``): the
     #: ranking, skirt and supersede rules read it many times per update
     _rank: float = field(default=-np.inf, repr=False)
+    #: per recent hit: found in every check order (or not checked), for ``ModeTracker._faint``
+    all_orders: deque = field(default_factory=lambda: deque(maxlen=20), repr=False)
 
     def rank_at(self, t: float) -> float:
         """Median contribution at its last logged hit at or before ``t`` (NaN if none; the log
@@ -221,11 +242,13 @@ class ModeTracker:
         self.tracks: list[TrackedMode] = []
         self._next_id = 1
         self._t_last = float("nan")  # data time of the previous update [s]
+        self._t_first = float("nan")  # data time of the first update since the reset [s]
 
     def reset(self) -> None:
         self.tracks = []
         self._next_id = 1
         self._t_last = float("nan")
+        self._t_first = float("nan")
 
     def presence(self, tr: TrackedMode) -> float:
         """Share of the updates of the last ``lost_timeout_s`` that matched ``tr``, over those
@@ -275,6 +298,8 @@ class ModeTracker:
         modes = [md for md in modes if md.stable]
         t_prev = self._t_last
         self._t_last = t
+        if not math.isfinite(self._t_first):
+            self._t_first = t
         matched: set[int] = set()
         duplicate: set[int] = set()
         if self.tracks and modes:
@@ -298,7 +323,8 @@ class ModeTracker:
         for c, md in enumerate(modes):
             if c not in matched and c not in duplicate:
                 tr = TrackedMode(
-                    self._next_id, "tentative", md, t, t, 0, deque(maxlen=self.history)
+                    self._next_id, "tentative", md, t, t, 0, deque(maxlen=self.history),
+                    all_orders=deque(maxlen=self.history),
                 )
                 self._next_id += 1
                 self._hit(tr, md, t, first=True)
@@ -327,6 +353,8 @@ class ModeTracker:
         for tr in self._sidebands():
             tr.status = "tentative"
         for tr in self._unresolved():
+            tr.status = "tentative"
+        for tr in self._faint():
             tr.status = "tentative"
         self._rank()
         return sorted(self.tracks, key=lambda tr: tr.mode.frequency_hz)
@@ -468,6 +496,29 @@ class ModeTracker:
                 kept.append(tr)
         return out
 
+    def _faint(self) -> list[TrackedMode]:
+        """Young tracked modes too weak and too order-dependent to be told from noise poles: not
+        established, a contribution below FAINT_SHARE of the strongest tracked mode's, and found
+        in every check order in fewer than FAINT_ORDERS of their recent hits. In output-only
+        data such poles recur for seconds (the realizations share most of their data) and pass
+        every test of a realization (unseen random draws: up to 5 false tracked modes in one
+        estimate, all output-only). Tracks opened within ``lost_timeout_s`` of the first update
+        are not judged: no track can be established before then, and a weak true mode found in
+        the start-up is as young and often missing in the lowest check order (spurious.py test
+        1). Status only; an appearing mode is judged too and is tracked once it grows or
+        settles."""
+        live = [tr for tr in self.tracks if tr.status == "tracked"]
+        if len(live) < 2:
+            return []
+        top = max(_finite(tr.rank, -np.inf) for tr in live)
+        if not top > 0.0:  # no contributions to compare (rank_key fell back to damping)
+            return []
+        start = self._t_first + self.lost_timeout_s
+        return [tr for tr in live
+                if not tr.established and tr.first_seen > start
+                and 0.0 <= _finite(tr.rank, -np.inf) < FAINT_SHARE * top
+                and sum(tr.all_orders) < FAINT_ORDERS * len(tr.all_orders)]
+
     def _like_shapes(self, a: TrackedMode, b: TrackedMode) -> bool:
         """Shapes within the MAC gate (True when they have one component or differ in size)."""
         sa, sb = a.mode.shape, b.mode.shape
@@ -520,6 +571,7 @@ class ModeTracker:
         tr.streak += 1
         tr.last_seen = t
         tr.ranks.append(md.rank_key)
+        tr.all_orders.append(not 0 <= md.stable_orders < len(CHECK_ORDER_STEPS))
         tr._rank = float(np.median(tr.ranks))
         if len(tr.ranks) == tr.ranks.maxlen:
             tr.rank_log.append((t, tr.rank))
