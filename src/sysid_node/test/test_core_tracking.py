@@ -383,3 +383,20 @@ def test_a_young_faint_pole_that_moves_with_the_order_is_not_tracked_after_the_s
         out = tr.update(modes, t)
     assert {round(m.frequency_hz): m.status for m in out} == {
         10: "tracked", 17: "tracked", 23: "tentative", 31: "tracked", 41: "tracked"}
+
+
+def test_a_start_up_pole_that_returns_after_lost_is_judged_as_a_new_one():
+    """A faint order-dependent pole seen in the start-up, lost, and back later is judged like a
+    pole that opens then (its start-up presence says nothing about the later one)."""
+    def c(f, contribution, orders=3):
+        return ModalParameters(f, 0.02, contribution=contribution, stable_orders=orders,
+                               shape=np.array([1.0, 0.5], complex))
+
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+    for k in range(40):
+        t = 0.1 * k
+        modes = [c(10.0, 100.0)]
+        if t < 0.5 or t >= 3.0:
+            modes.append(c(23.0, 1.0, orders=2))
+        out = tr.update(modes, t)
+    assert {round(m.frequency_hz): m.status for m in out} == {10: "tracked", 23: "tentative"}

@@ -109,11 +109,12 @@ SKIRT_DAMPING_SIGMAS = 1.96
 #: what the model of the dominant modes leaves unexplained: per draw, the median contribution of
 #: the false tracked modes grows with the strongest mode's (log-log slope 0.82 on the random
 #: suite, seeds 0-51, 0.97 on seeds 52-151). Calibrated on the suite (seeds 0-51) by replay of
-#: the tracker's recorded inputs: 0.02 / 0.03 / 0.05 lower the false tracked modes per estimate
-#: 0.121 -> 0.116 / 0.113 / 0.110 with found-by-3s, kept and the median pickup unmoved by 0.02
-#: and 0.03, while 0.05 slows the median pickup (1.065 -> 1.091 s: an appearing mode is young
-#: and weak too); checked on seeds 52-151: 0.138 -> 0.108, draws with more than 2 false
-#: tracked modes in an estimate 7 -> 3, found-by-3s, settled and the median pickup unmoved.
+#: the tracker's recorded inputs (re-acquired tracks judged from the first commit on: 0.113 ->
+#: 0.111 for 0.03): 0.02 / 0.03 / 0.05 lower the false tracked modes per estimate 0.121 ->
+#: 0.116 / 0.113 / 0.110 with found-by-3s, kept and the median pickup unmoved by 0.02 and 0.03,
+#: while 0.05 slows the median pickup (1.065 -> 1.091 s: an appearing mode is young and weak
+#: too); checked on seeds 52-151: 0.138 -> 0.105, draws with more than 2 false tracked modes in
+#: an estimate 7 -> 3, found-by-3s, settled and the median pickup unmoved.
 FAINT_SHARE = 0.03
 #: Share of a track's recent hits (its ``history``) in which the realization found it in every
 #: check order (``ModalParameters.stable_orders``; spurious.py test 1 allows one miss) below
@@ -502,11 +503,11 @@ class ModeTracker:
         in every check order in fewer than FAINT_ORDERS of their recent hits. In output-only
         data such poles recur for seconds (the realizations share most of their data) and pass
         every test of a realization (unseen random draws: up to 5 false tracked modes in one
-        estimate, all output-only). Tracks opened within ``lost_timeout_s`` of the first update
-        are not judged: no track can be established before then, and a weak true mode found in
-        the start-up is as young and often missing in the lowest check order (spurious.py test
-        1). Status only; an appearing mode is judged too and is tracked once it grows or
-        settles."""
+        estimate, all output-only). Tracks opened (or re-acquired after lost) within
+        ``lost_timeout_s`` of the first update are not judged: no track can be established
+        before then, and a weak true mode found in the start-up is as young and often missing
+        in the lowest check order (spurious.py test 1). Status only; an appearing mode is
+        judged too and is tracked once it grows or settles (a slower pickup on some draws)."""
         live = [tr for tr in self.tracks if tr.status == "tracked"]
         if len(live) < 2:
             return []
@@ -515,7 +516,7 @@ class ModeTracker:
             return []
         start = self._t_first + self.lost_timeout_s
         return [tr for tr in live
-                if not tr.established and tr.first_seen > start
+                if not tr.established and tr.since > start
                 and 0.0 <= _finite(tr.rank, -np.inf) < FAINT_SHARE * top
                 and sum(tr.all_orders) < FAINT_ORDERS * len(tr.all_orders)]
 
