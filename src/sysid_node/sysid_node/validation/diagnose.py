@@ -381,9 +381,9 @@ def delay_estimate(ctx: Context, spec: ModelSpec, peak_lag: int) -> float | None
     and with the other form (dominant modes of twice the order, or a direct one), the lower of
     the two at each delay. Its :data:`REFINED_DELAYS` deepest local minima are fitted as the
     trial fits them (:func:`_delay_refit`: poles refined on the free run), the best of them
-    then again :data:`DELAY_STEP` / 2 either side; the delay whose refined fit lowers the
-    estimation part's free-run error most beyond the sampling spread of a sum of squares is
-    kept, None if none does.
+    then again :data:`DELAY_STEP` / 2 either side and at the whole delays either side; the
+    delay whose refined fit lowers the estimation part's free-run error most beyond the
+    sampling spread of a sum of squares is kept, None if none does.
 
     Why not the whole-sample minimum of the cheap scan: under a swept input a delay off by half
     a sample misses the sweep's fast end by a large phase, and the cheap error dips only within
@@ -430,9 +430,9 @@ def delay_estimate(ctx: Context, spec: ModelSpec, peak_lag: int) -> float | None
     if not fitted:
         return None
     best = min(fitted, key=fitted.__getitem__) - spec.delay
-    for d in (best - 0.5 * DELAY_STEP, best + 0.5 * DELAY_STEP):
-        if d > 0:
-            refined(d)
+    for d in (best - 0.5 * DELAY_STEP, best + 0.5 * DELAY_STEP, np.floor(best), np.ceil(best)):
+        if d > 0:  # the whole delays too: a sampled system's delay often is one
+            refined(float(d))
     d_best = min(fitted, key=fitted.__getitem__)
     return d_best if fitted[d_best] < base * (1 - tol) else None
 
