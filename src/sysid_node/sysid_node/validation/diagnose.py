@@ -208,21 +208,7 @@ def _delayed_realization(ctx: Context, spec: ModelSpec, d: float) -> ModelSpec |
     data = ctx.data
     if not data.n_inputs or ctx.assessment.primary != "free_run" or not is_plain(ctx.current):
         return None
-    shifted = replace(data, u=shift(data.u, d))
-    try:
-        _, ranked, _, _ = rank_realizations(
-            shifted, ctx.split, spec.order + spec.extra_order, None, "free_run"
-        )
-    except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
-        return None
-    if not ranked:
-        return None
-    c = ranked[0]
-    if (c.block_rows, c.reduce_from, c.decimate) == (
-        spec.block_rows, spec.reduce_from, spec.decimate
-    ):
-        return None
-    return replace(spec, block_rows=c.block_rows, reduce_from=c.reduce_from, decimate=c.decimate)
+    return _selected_realization(ctx, spec, replace(data, u=shift(data.u, d)))
 
 
 def _cleaned_realization(
@@ -241,9 +227,18 @@ def _cleaned_realization(
             return None
         est = ctx.split.est
         y = data.y - phi @ rs.lstsq(phi[est], data.y[est])
-        cleaned = replace(data, y=y, u=shift(data.u, spec.delay))
+    except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    return _selected_realization(ctx, spec, replace(data, y=y, u=shift(data.u, spec.delay)))
+
+
+def _selected_realization(ctx: Context, spec: ModelSpec, data: ValidationData) -> ModelSpec | None:
+    """``spec`` with the horizon and realization the baseline's selection
+    (:func:`.baseline.rank_realizations`) picks for ``data`` at the structure's order; None when
+    they are the spec's own or the selection fails."""
+    try:
         _, ranked, _, _ = rank_realizations(
-            cleaned, ctx.split, spec.order + spec.extra_order, None, "free_run"
+            data, ctx.split, spec.order + spec.extra_order, None, "free_run"
         )
     except (ValidationError, np.linalg.LinAlgError, ValueError, FloatingPointError):
         return None
