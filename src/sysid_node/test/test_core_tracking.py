@@ -365,21 +365,23 @@ def test_mac_matrix_is_mac_of_every_pair():
     assert np.all(m[:, 2] == 0.0)
 
 
+def _pole(f: float, contribution: float, orders: int = 3) -> ModalParameters:
+    """A 2 %-damped pole pair found in ``orders`` of the 3 check orders (the faint-pole tests)."""
+    return ModalParameters(f, 0.02, contribution=contribution, stable_orders=orders,
+                           shape=np.array([1.0, 0.5], complex))
+
+
 def test_a_young_faint_pole_that_moves_with_the_order_is_not_tracked_after_the_start_up():
     """After the start-up, a new pole pair with 1 % of the strongest mode's contribution that
     the realizations miss in a check order (stable_orders 2 of 3) is tentative while young; as
     weak a pole found in every check order, a missing one with 10 %, and as weak a one that
     opened in the start-up are tracked (an output-only noise pole, random draws 52-151)."""
-    def c(f, contribution, orders=3):
-        return ModalParameters(f, 0.02, contribution=contribution, stable_orders=orders,
-                               shape=np.array([1.0, 0.5], complex))
-
     tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
     for k in range(40):
         t = 0.1 * k
-        modes = [c(10.0, 100.0), c(17.0, 1.0, orders=2)]
+        modes = [_pole(10.0, 100.0), _pole(17.0, 1.0, orders=2)]
         if t >= 3.0:
-            modes += [c(23.0, 1.0, orders=2), c(31.0, 1.0), c(41.0, 10.0, orders=2)]
+            modes += [_pole(23.0, 1.0, orders=2), _pole(31.0, 1.0), _pole(41.0, 10.0, orders=2)]
         out = tr.update(modes, t)
     assert {round(m.frequency_hz): m.status for m in out} == {
         10: "tracked", 17: "tracked", 23: "tentative", 31: "tracked", 41: "tracked"}
@@ -388,15 +390,11 @@ def test_a_young_faint_pole_that_moves_with_the_order_is_not_tracked_after_the_s
 def test_a_start_up_pole_that_returns_after_lost_is_judged_as_a_new_one():
     """A faint order-dependent pole seen in the start-up, lost, and back later is judged like a
     pole that opens then (its start-up presence says nothing about the later one)."""
-    def c(f, contribution, orders=3):
-        return ModalParameters(f, 0.02, contribution=contribution, stable_orders=orders,
-                               shape=np.array([1.0, 0.5], complex))
-
     tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
     for k in range(40):
         t = 0.1 * k
-        modes = [c(10.0, 100.0)]
+        modes = [_pole(10.0, 100.0)]
         if t < 0.5 or t >= 3.0:
-            modes.append(c(23.0, 1.0, orders=2))
+            modes.append(_pole(23.0, 1.0, orders=2))
         out = tr.update(modes, t)
     assert {round(m.frequency_hz): m.status for m in out} == {10: "tracked", 23: "tentative"}
