@@ -58,5 +58,8 @@ def test_a_failing_model_holding_a_rotor_harmonic_in_its_poles_tries_that_harmon
     top = out.hyps[0]
     assert top.effect == "periodic_disturbance" and top.significant
     assert top.parameters["source"] == sc.truth["source"]
+    # the evidence names the trial the parameters are, after the gate's own (other) choice
+    won = top.evidence.split("lowers the error most")[0].rsplit(";", 1)[-1]
+    assert f"source={sc.truth['source']}" in won and "parameters are this trial's" in top.evidence
     assert out.added[:1] == ["periodic_disturbance"]
     assert out.error_drop > MIN_DROP

@@ -295,8 +295,10 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     fm, cmp, chosen, e1 = best
     alt = ""
     if chosen is not params:  # an alternative the gate also found beat its first choice
-        alt = "; the trial with " + ", ".join(f"{k}={v}" for k, v in chosen.items())
-        alt += " lowers the error most"
+        alt = "; the trial with " + ", ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in chosen.items())
+        alt += (" lowers the error most (an alternative to the gate's first choice: the"
+                " hypothesis's parameters are this trial's)")
         h.parameters = dict(chosen)
     params = chosen
     p_drop = min(1.0, cmp.p_value * fitted)
