@@ -178,9 +178,10 @@ def test_cubic_trial_tries_every_coordinate_of_the_gates_channel():
 
 
 def test_the_best_of_several_trials_pays_for_the_choice():
-    """The cubic trial fits every coordinate of the gate's channel and keeps the one that lowers
-    the validation error most (suite seed 1104006): chosen on the data that test it, its drop's
-    p-value is that comparison's times the number of candidates fitted (Bonferroni)."""
+    """The cubic trial fits every coordinate of the gate's channel (and the follow-ups they ask
+    for) and keeps the one that lowers the validation error most (suite seed 1104006): chosen on
+    the data that test it, its drop's p-value is that comparison's times the number of
+    candidates fitted (Bonferroni)."""
     from sysid_node.validation import suite as S
     from sysid_node.validation.assess import compare_primary, primary_error
     from sysid_node.validation.workflow import Options, run_validation
@@ -188,13 +189,12 @@ def test_the_best_of_several_trials_pays_for_the_choice():
     sc = S.draw("nonlinear_stiffness", 1104006, "multisine")
     out = run_validation(S._data(sc), Options(order=sc.nominal_order))
     h = next(h for h in out.hyps if h.effect == "nonlinear_stiffness")
-    k = 1 + len(h.alternatives)
-    assert k >= 3, h.alternatives
+    k = int(h.trial_note.split("the best of ")[1].split()[0])  # with follow-up fits, if any
+    assert k >= 1 + len(h.alternatives) >= 3, (k, h.alternatives)
     e1 = primary_error(h.trial, out.data, out.split, out.before.primary)
     own = compare_primary(out.before, e1).p_value
     assert h.drop_p == pytest.approx(min(1.0, k * own), rel=1e-6), (h.drop_p, own)
-    assert f"the best of {k} trials" in h.trial_note
-    assert h.significant  # 3 x 1e-3 is still under the 1e-2 asked
+    assert h.significant  # k x 1e-4 is still under the 1e-2 asked
 
 
 def test_missing_mode_trial_starts_from_the_model_plus_a_mode_at_the_evidence():
@@ -211,3 +211,25 @@ def test_missing_mode_trial_starts_from_the_model_plus_a_mode_at_the_evidence():
     h = next(h for h in out.hyps if h.effect == "missing_mode")
     assert h.significant and h.score > 0.3, h.evidence
     assert abs(h.parameters["frequency_hz"] / 5.8177 - 1) < 0.02
+
+
+def test_cubic_trial_also_fits_the_force_where_the_input_acts():
+    """Suite record 1104009 (acceleration sensor, modes 12.2, 17.2, 37.6 Hz, coloured input,
+    the validation part's output 1.2 x the estimation part's RMS): at every coordinate the
+    estimation error prefers the force as a free input (its own b_q, d_q), which spends its
+    parameters on the estimation part's noise (at the displacement it lowers the validation
+    error by 7 %).
+    The trial also fits the force acting where the input acts (Duffing, one stiffness): the
+    displacement's drop then exceeds half the 67 % the effect adds to the error (its ceiling),
+    and the follow-up fits are counted in the Bonferroni factor."""
+    from sysid_node.validation import suite as S
+    from sysid_node.validation.workflow import Options, run_validation
+
+    sc = S.draw("nonlinear_stiffness", 1104009, "coloured")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order))
+    h = next(h for h in out.hyps if h.effect == "nonlinear_stiffness")
+    assert out.hyps[0] is h and h.significant, h.evidence
+    assert h.score > 0.5 * 0.67, h.evidence
+    assert h.parameters["integrals"] == 2 and h.parameters.get("force") == "input", h.parameters
+    k = int(h.trial_note.split("the best of ")[1].split()[0])
+    assert k > 1 + len(h.alternatives), h.trial_note  # the follow-up fits are counted

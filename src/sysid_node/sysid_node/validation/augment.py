@@ -77,6 +77,9 @@ class ModelSpec:
     cubic_channel: int | None = None
     cubic_integrals: int = 0  # the spring's coordinate: output (0), its integral (1) or double (2)
     cubic_input: int = 0  # the input the spring force acts with (Duffing: where the input acts)
+    #: how the spring's force enters the discrete model: "best" (the "input" or "free" form
+    #: with the lower estimation error, see models._fit_simulation) or "input" only
+    cubic_force: str = "best"
     feedback: bool = False
     feedback_lags: int = 5
     added: list[str] = field(default_factory=list)
@@ -132,8 +135,11 @@ class ModelSpec:
             s.cubic_channel = int(p.get("channel", 0))
             s.cubic_integrals = int(p.get("integrals", 0))
             s.cubic_input = int(p.get("input", 0))
+            s.cubic_force = str(p.get("force", "best"))
             if s.cubic_integrals not in (0, 1, 2):
                 raise ValidationError("nonlinear_stiffness: integrals must be 0, 1 or 2")
+            if s.cubic_force not in ("best", "input"):
+                raise ValidationError("nonlinear_stiffness: force must be best or input")
         elif effect == "sensor_bias":
             s.bias = True
             s.drift = str(p.get("drift", True)).lower() not in ("0", "false", "no")

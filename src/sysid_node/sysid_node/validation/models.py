@@ -722,7 +722,8 @@ def _fit_simulation(
     q = measured_spring_force(fm, data)
     j = sp.cubic_input
     best = None
-    for m0, form in itertools.product(_spring_starts(fm, m), ("input", "free")):
+    forms = ("input",) if sp.cubic_force == "input" else ("input", "free")
+    for m0, form in itertools.product(_spring_starts(fm, m), forms):
         a, c, t, x, v, w = _refine_spring(m0, data, u, q, j, rows, phi, form)
         m = _to_basis(m0, a, c, t)
         oe = fit_output_error(LinearDynamics.build(a, c, data.n), data.y, v, rows, phi, w)
