@@ -4,9 +4,11 @@ the delay scan and confirmed by the held-out trial (a drawn case of the hidden-e
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from sysid_node.validation import diagnose as D
 from sysid_node.validation import gates as G
+from sysid_node.validation import models as M
 from sysid_node.validation import suite as S
 from sysid_node.validation.workflow import Options, run_validation
 
@@ -82,3 +84,58 @@ def test_a_delay_past_a_sweeps_cross_correlation_peak_is_found():
     out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
     assert out.hyps[0].effect == "input_delay" and out.hyps[0].significant
     assert out.added[:1] == ["input_delay"] and out.error_drop > 0.5
+
+
+def test_the_trial_scan_realizes_both_forms_from_one_projection_per_delay(monkeypatch):
+    """The trial's scan fits every delay with the model's realization and the other form
+    (:func:`.diagnose.delay_estimate`); both come from the same data projection (the QR of the
+    stacked windows, most of a scan fit's cost): one QR per delay, not one per fit."""
+    sc = S.draw("input_delay", 1103006, "multisine")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=False))
+    ctx = G.Context(out.data, out.split, out.base, out.before, dict(out.data.signals))
+    fits, qrs, inside = [], [], [False]
+    scan_model, projection = G._scan_model, M.decimated_projection
+
+    def counted_fit(*args, **kwargs):
+        inside[0] = True
+        fits.append(1)
+        try:
+            return scan_model(*args, **kwargs)
+        finally:
+            inside[0] = False
+
+    def counted_qr(*args, **kwargs):
+        qrs.extend([1] if inside[0] else [])
+        return projection(*args, **kwargs)
+
+    monkeypatch.setattr(G, "_scan_model", counted_fit)
+    monkeypatch.setattr(M, "decimated_projection", counted_qr)
+    D.delay_estimate(ctx, out.base.spec, 0)
+    delays = D.TRIAL_MAX_DELAY / D.DELAY_STEP + 1
+    assert len(fits) >= 2 * delays - 1  # both forms at every delay but 0
+    # each form's scan starts with its whole delays 0..MAX_DELAY_SAMPLES (the gate's grid),
+    # one form after the other: those need a QR per form
+    assert len(qrs) <= delays + G.MAX_DELAY_SAMPLES + 1
+
+
+def test_the_next_diagnosis_reuses_the_delay_scan_of_the_same_realization(monkeypatch):
+    """Draw 10 of the nonlinear_stiffness suite (multisine): --auto adds the cubic force and
+    diagnoses again, and the delay trial runs in both diagnoses; the cubic structure keeps the
+    realization, and the delay scan's fits, which depend on the data and the realization
+    only, are not done again (they were: 258 fits twice, as on Silverbox)."""
+    sc = S.draw("nonlinear_stiffness", 1104010, "multisine")
+    seen, again = set(), []
+    scan_model = G._scan_model
+
+    def recorded(*args, **kwargs):
+        u, spec = next(a for a in args if isinstance(a, np.ndarray)), next(
+            a for a in args if hasattr(a, "reduce_from"))
+        key = (u.tobytes(), spec.block_rows, spec.reduce_from, spec.decimate)
+        again.extend([1] if key in seen else [])
+        seen.add(key)
+        return scan_model(*args, **kwargs)
+
+    monkeypatch.setattr(G, "_scan_model", recorded)
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    assert out.added[:1] == ["nonlinear_stiffness"] and len(seen) > 0
+    assert len(again) == 0  # fits done again

@@ -76,11 +76,13 @@ def diagnose(
     assessment: Assessment,
     signal: str | None = None,
     trials: bool = True,
+    scans: dict | None = None,
 ) -> list[Hypothesis]:
     """Rank the effects of the vocabulary for ``current`` (fitted with ``spec``).
 
-    ``signal`` restricts the candidate explanatory signals to one name ('' = none). Returns
-    one Hypothesis per effect, best first.
+    ``signal`` restricts the candidate explanatory signals to one name ('' = none). ``scans``:
+    the delay scan's fits of earlier diagnoses of the same data and split (:attr:`.gates.
+    Context.scans`; filled in). Returns one Hypothesis per effect, best first.
     """
     if signal:
         if signal not in data.signals:
@@ -91,6 +93,8 @@ def diagnose(
     else:
         cands = {} if signal == "" else dict(data.signals)
     ctx = Context(data, split, current, assessment, cands)
+    if scans is not None:
+        ctx.scans = scans
     hyps, lines = gate_all(ctx)
     if trials:
         # a model that fails (primary fit under POOR_FIT) earns a trial of every effect with

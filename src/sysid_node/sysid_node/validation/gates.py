@@ -41,6 +41,7 @@ from .data import ValidationData, ValidationError
 from .models import (
     TIME_SIGNAL,
     FittedModel,
+    dsra_projection,
     fit,
     lagged,
     realize,
@@ -134,6 +135,11 @@ class Context:
     assessment: Assessment
     signals: dict[str, np.ndarray]
     fitted: dict = field(default_factory=dict)  # trial models fitted by a gate, for confirm
+    #: the delay scan's fits (:func:`delay_scan`): they depend on the data, the split and the
+    #: realization only, not on the current model, so the diagnoses of one validate run share
+    #: them (:func:`.workflow.run_validation`: an effect that keeps the realization, e.g.
+    #: nonlinear_stiffness, leaves the next diagnosis the same scan)
+    scans: dict = field(default_factory=dict)
 
     @property
     def e(self) -> np.ndarray:
@@ -718,16 +724,25 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
     max(:data:`MAX_DELAY_SAMPLES`, peak_lag + 2)), the dynamics identified again for each
     (DSRA, B and D on the free run; no pole refinement: cheap): (grid, scaled sums of squares,
     cost) with cost(d) -> (sum of squares, scaled error sequence or None) for any delay d
-    (fractional too). Cached on the context (the gate and the trial share it); None without
-    an input or for a structure the delay is not tried on."""
+    (fractional too). The fits are memoized in ``ctx.scans`` (the gate, the trial and the next
+    diagnoses of the run share them); None without an input or for a structure the delay is
+    not tried on."""
     cur, data, split = ctx.current, ctx.data, ctx.split
     if not data.n_inputs or cur.model is None or cur.locals or spec.feedback:
         return None
     top = int(max(MAX_DELAY_SAMPLES, int(peak_lag) + 2))
     key = ("input_delay_scan", spec.delay, spec.order, spec.extra_order, spec.block_rows,
-           spec.reduce_from, spec.decimate, top)
-    if key in ctx.fitted:
-        return ctx.fitted[key]
+           spec.reduce_from, spec.decimate)
+    if key not in ctx.scans:
+        ctx.scans[key] = _scan_cost(ctx.scans, data, spec, split)
+    cost = ctx.scans[key]
+    grid = np.arange(0, top + 1)
+    errs = np.array([cost(float(d))[0] for d in grid])
+    return grid, errs, cost
+
+
+def _scan_cost(cache: dict, data: ValidationData, spec, split: Split):
+    """cost(d) of :func:`delay_scan` for ``spec`` (memoized)."""
     est = split.est
     scale = np.maximum(np.std(data.y[est], axis=0), 1e-300)
     order = spec.order + spec.extra_order
@@ -737,7 +752,7 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
         if d not in memo:
             u = shift(data.u, spec.delay + d)
             try:
-                m = _scan_model(data, u, spec, split, order)
+                m = _scan_model(cache, data, u, spec, split, order, spec.delay + d)
             except (ValidationError, np.linalg.LinAlgError):
                 m = None
             if m is None or spectral_radius(m.A) >= 1.0:
@@ -749,18 +764,26 @@ def delay_scan(ctx: Context, spec, peak_lag: int):
                 memo[d] = (float(np.sum(e**2)), e) if np.all(np.isfinite(e)) else (np.inf, None)
         return memo[d]
 
-    grid = np.arange(0, top + 1)
-    errs = np.array([cost(float(d))[0] for d in grid])
-    ctx.fitted[key] = (grid, errs, cost)
-    return ctx.fitted[key]
+    return cost
 
 
-def _scan_model(data: ValidationData, u: np.ndarray, spec, split: Split, order: int):
+def _scan_model(
+    cache: dict, data: ValidationData, u: np.ndarray, spec, split: Split, order: int,
+    delay: float,
+):
     """The delay scan's dynamics, realized as the model's are (:func:`.models.fit`): directly
     at ``order``, or (``spec.reduce_from``) the dominant modes of a higher-order realization;
     at the nominal order a realization can fail (unstable, noise modes) where the model's
-    structure does not, and the scan would then compare a broken fit with the right delay."""
-    return realize(data.y, u, data.fs, order, spec, split)
+    structure does not, and the scan would then compare a broken fit with the right delay.
+    ``u`` is the input delayed by ``delay``. The last data projection (the QR of the stacked
+    windows: most of a scan fit's cost) is kept in ``cache``: the trial's scan realizes both
+    forms at each delay from the same one (:func:`.diagnose.delay_estimate`)."""
+    key = (round(delay, 9), spec.block_rows, spec.decimate)
+    last = cache.get("delay_projection")
+    if last is None or last[0] != key:
+        last = (key, dsra_projection(data.y, u, data.fs, spec, split))
+        cache["delay_projection"] = last
+    return realize(data.y, u, data.fs, order, spec, split, projection=last[1])
 
 
 def scan_comparison(e0: np.ndarray, e1: np.ndarray) -> rs.ErrorComparison:

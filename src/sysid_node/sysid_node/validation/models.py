@@ -239,12 +239,32 @@ def identify_dsra(
     block_rows: int,
     segments: list[tuple[int, int]] | None = None,
     decimate: int = 1,
+    projection: DataProjection | DecimatedProjection | None = None,
 ) -> IdentifiedModel:
     """Batch DSRA of a fixed order on ``segments`` of the record (ValidationError with a
     one-line reason on failure); ``decimate`` > 1: realized from the segments decimated by it
-    and mapped to the full rate (:func:`to_full_rate`; B, D zero)."""
+    and mapped to the full rate (:func:`to_full_rate`; B, D zero). ``projection``: that of
+    these arguments (:func:`dsra_projection`) when the caller has it already."""
     try:
-        return decimated_projection(y, u, fs, decimate, block_rows, segments).model(order)
+        if projection is None:
+            projection = decimated_projection(y, u, fs, decimate, block_rows, segments)
+        return projection.model(order)
+    except (np.linalg.LinAlgError, ValueError) as err:
+        if isinstance(err, ValidationError):
+            raise
+        raise ValidationError(f"identification failed: {' '.join(str(err).split())}") from None
+
+
+def dsra_projection(
+    y: np.ndarray, u: np.ndarray, fs: float, spec: ModelSpec, split: Split
+) -> DataProjection | DecimatedProjection:
+    """The data projection :func:`realize` realizes ``spec``'s dynamics from (its horizon and
+    decimation, the estimation segments; ValidationError on failure): one QR of the stacked
+    windows serves realizations of any order, direct or reduced."""
+    try:
+        return decimated_projection(
+            y, u, fs, spec.decimate, spec.block_rows, split.est_segments
+        )
     except (np.linalg.LinAlgError, ValueError) as err:
         if isinstance(err, ValidationError):
             raise
@@ -610,17 +630,23 @@ def _fit_core(
 
 
 def realize(
-    y: np.ndarray, u: np.ndarray, fs: float, order: int, spec: ModelSpec, split: Split
+    y: np.ndarray,
+    u: np.ndarray,
+    fs: float,
+    order: int,
+    spec: ModelSpec,
+    split: Split,
+    projection: DataProjection | DecimatedProjection | None = None,
 ) -> IdentifiedModel:
     """The linear dynamics of ``spec`` on the estimation segments: directly at ``order`` or
     (``spec.reduce_from``, with an input) the dominant modes of a higher-order realization;
     from the record decimated by ``spec.decimate``, B and D then by output error at the full
-    rate."""
+    rate. ``projection``: :func:`dsra_projection` of these arguments, when the caller has it."""
     segs, br, k = split.est_segments, spec.block_rows, spec.decimate
     if spec.reduce_from > order and u.shape[1]:
-        big = identify_dsra(y, u, fs, spec.reduce_from, br, segs, k)
+        big = identify_dsra(y, u, fs, spec.reduce_from, br, segs, k, projection)
         return dominant_modes(big, y, u, split.est, order)
-    m = identify_dsra(y, u, fs, order, br, segs, k)
+    m = identify_dsra(y, u, fs, order, br, segs, k, projection)
     if k > 1 and u.shape[1] and spectral_radius(m.A) < 1.0:
         oe = fit_output_error(LinearDynamics.build(m.A, m.C, y.shape[0]), y, u, split.est)
         m = replace(m, B=oe.B, D=oe.D)

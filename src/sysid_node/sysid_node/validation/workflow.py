@@ -152,7 +152,8 @@ def run_validation(data: ValidationData, opts: Options, source: str = "") -> Out
         )
     split, base, choice, before = baseline_assessment(data, opts)
     spec = base.spec
-    hyps = diagnose(data, split, spec, base, before, signal=opts.signal)
+    scans: dict = {}  # the delay scan's fits, shared by the diagnoses of this run
+    hyps = diagnose(data, split, spec, base, before, signal=opts.signal, scans=scans)
     current, cur_a, added, steps = base, before, [], []
     if opts.add:
         current, cur_a = _add_given(data, split, opts, hyps, base, before)
@@ -160,7 +161,7 @@ def run_validation(data: ValidationData, opts: Options, source: str = "") -> Out
         steps.append(_step(added, before, cur_a))
     if opts.auto:
         cur_hyps = hyps if not added else diagnose(
-            data, split, current.spec, current, cur_a, opts.signal
+            data, split, current.spec, current, cur_a, opts.signal, scans=scans
         )
         for _ in range(len(EFFECTS)):
             top = next((h for h in cur_hyps if h.significant and h.trial is not None), None)
@@ -176,7 +177,8 @@ def run_validation(data: ValidationData, opts: Options, source: str = "") -> Out
             steps.append(_step([*added, top.effect], cur_a, cand))
             current, cur_a = top.trial, cand
             added.append(top.effect)
-            cur_hyps = diagnose(data, split, current.spec, current, cur_a, opts.signal)
+            cur_hyps = diagnose(data, split, current.spec, current, cur_a, opts.signal,
+                                scans=scans)
     return Outcome(
         data,
         split,
