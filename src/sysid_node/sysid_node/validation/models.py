@@ -250,9 +250,7 @@ def identify_dsra(
             projection = decimated_projection(y, u, fs, decimate, block_rows, segments)
         return projection.model(order)
     except (np.linalg.LinAlgError, ValueError) as err:
-        if isinstance(err, ValidationError):
-            raise
-        raise ValidationError(f"identification failed: {' '.join(str(err).split())}") from None
+        raise _identification_failed(err) from None
 
 
 def dsra_projection(
@@ -266,9 +264,14 @@ def dsra_projection(
             y, u, fs, spec.decimate, spec.block_rows, split.est_segments
         )
     except (np.linalg.LinAlgError, ValueError) as err:
-        if isinstance(err, ValidationError):
-            raise
-        raise ValidationError(f"identification failed: {' '.join(str(err).split())}") from None
+        raise _identification_failed(err) from None
+
+
+def _identification_failed(err: Exception) -> ValidationError:
+    """A numerical failure of the DSRA as the one-line ValidationError the CLI prints."""
+    if isinstance(err, ValidationError):
+        return err
+    return ValidationError(f"identification failed: {' '.join(str(err).split())}")
 
 
 @dataclass
