@@ -16,7 +16,7 @@ from sysid_node.validation import gates as G
 from sysid_node.validation import residuals as rs
 from sysid_node.validation import suite as S
 from sysid_node.validation.data import ValidationData
-from sysid_node.validation.diagnose import MIN_DROP, P_DROP, confirm
+from sysid_node.validation.diagnose import MIN_DROP, P_DROP, confirm, rank
 from sysid_node.validation.gates import Context
 from sysid_node.validation.split import interleaved
 from sysid_node.validation.workflow import Options, run_validation
@@ -192,3 +192,23 @@ def test_an_input_predicted_by_its_own_past_to_rounding_is_not_closed_loop(effec
     p, share = G.closed_loop_test(out.data, out.split.est)
     assert p == 1.0 and share == 0.0
     assert out.before.primary == "free_run"
+
+
+def test_a_loop_outranks_a_delayed_input_that_mimics_it():
+    """Suite draw 1106013 (coloured reference, loop lag 3 samples, no delay): a 15-sample
+    input delay lowers the output's one-step error by 28 %, the loop explains 23 % of the
+    input's and lowers the output's by 34 %; ranked on the input's alone the delay came first."""
+    sc = S.draw("feedback", 1106013, "coloured")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    h = next(h for h in out.hyps if h.effect == "feedback")
+    delay = next(h for h in out.hyps if h.effect == "input_delay")
+    assert h.significant and h.output_drop > delay.score
+    assert out.hyps[0].effect == "feedback"
+
+
+def test_a_loop_ranks_on_the_larger_of_its_input_and_output_drops():
+    loop = G.Hypothesis("feedback", score=0.2, significant=True, output_drop=0.45)
+    other = G.Hypothesis("input_delay", score=0.3, significant=True)
+    quiet = G.Hypothesis("feedback", score=0.2, significant=True)
+    assert rank([other, loop])[0] is loop
+    assert rank([other, quiet])[0] is other

@@ -133,12 +133,12 @@ def _triable(h: Hypothesis) -> bool:
 
 
 def rank(hyps: list[Hypothesis]) -> list[Hypothesis]:
-    """Significant first by score; within TIE of the best, the simpler effect first
-    (parsimony); the rest by score, then by gate p-value."""
-    out = sorted(hyps, key=lambda h: (not h.significant, -h.score, h.p_value))
-    top = [h for h in out if h.significant and h.score >= out[0].score - TIE]
+    """Significant first by score (:attr:`.gates.Hypothesis.rank_score`); within TIE of the
+    best, the simpler effect first (parsimony); the rest by score, then by gate p-value."""
+    out = sorted(hyps, key=lambda h: (not h.significant, -h.rank_score, h.p_value))
+    top = [h for h in out if h.significant and h.rank_score >= out[0].rank_score - TIE]
     if top:
-        first = min(top, key=lambda h: (COMPLEXITY[h.effect], -h.score))
+        first = min(top, key=lambda h: (COMPLEXITY[h.effect], -h.rank_score))
         out.remove(first)
         out.insert(0, first)
     return out
@@ -383,6 +383,9 @@ def _confirm_feedback(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int
         out = compare_primary(ctx.assessment, primary_error(fm, ctx.data, ctx.split,
                                                             ctx.assessment.primary))
         model_note = f"the loop model's output {what} error changes by {-100 * out.drop:+.0f} %"
+        if out.p_value < P_DROP and out.drop >= MIN_DROP:
+            h.output_drop = out.drop
+            model_note += f" (p={out.p_value:.1e})"
     else:
         model_note = f"no loop model: {why}"
     h.trial_note = (

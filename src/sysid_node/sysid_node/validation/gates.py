@@ -96,6 +96,16 @@ class Hypothesis:
     trial: FittedModel | None = None
     trial_note: str = ""
     alternatives: list[dict] = field(default_factory=list)  # other parameters worth a trial
+    #: feedback: the loop model's drop of the output's primary validation error, when
+    #: significant (its score is the input's drop: :func:`.diagnose._confirm_feedback`)
+    output_drop: float = 0.0
+
+    @property
+    def rank_score(self) -> float:
+        """What ranks the hypothesis against the others: the drop of the output's primary
+        error, or for feedback the larger of the input's and the output's (a loop the open-loop
+        model misses lowers both; the input's alone is not on the others' scale)."""
+        return max(self.score, self.output_drop)
 
     def to_dict(self) -> dict:
         return {
