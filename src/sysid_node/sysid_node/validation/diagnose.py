@@ -272,8 +272,9 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
     failing model); the drop's p-value must then be under P_DROP / n_tried. With
     alternatives (other scheduling signals, spring coordinates) the one that lowers the
-    validation error most is kept and its drop's p-value is multiplied by the number of
-    candidates fitted (Bonferroni: the best of k is chosen on the data that test it)."""
+    validation error most of those significant on their own is kept (:func:`_best_trial`) and
+    its drop's p-value is multiplied by the number of candidates fitted (Bonferroni: the best
+    of k is chosen on the data that test it)."""
     params = dict(h.parameters)
     if h.effect == "feedback":
         _confirm_feedback(h, ctx, spec, n_tried)
@@ -285,9 +286,8 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
             h.evidence += "; " + h.trial_note
             return
         params = {"samples": d}
-    best = None
+    trials = []
     note = ""
-    fitted = 0
     refit = _REFITS.get(h.effect, _refit)
     queue = [params, *h.alternatives]  # e.g. other scheduling signals, spring coordinates
     while queue:
@@ -296,23 +296,23 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
         if fm is None:
             note = note or why
             continue
-        fitted += 1
         queue += _follow_ups(h.effect, cand, fm)
         e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
-        cmp = compare_primary(ctx.assessment, e1)
-        if best is None or cmp.drop > best[1].drop:
-            best = (fm, cmp, cand, e1)
-    if best is None:
+        trials.append((fm, compare_primary(ctx.assessment, e1), cand, e1))
+    if not trials:
         h.trial_note = note
         h.evidence += "; " + note
         return
-    fm, cmp, chosen, e1 = best
+    fitted = len(trials)
+    fm, cmp, chosen, e1 = _best_trial(trials, P_DROP / n_tried / fitted)
     alt = ""
     if chosen is not params:  # an alternative the gate also found beat its first choice
         alt = "; the trial with " + ", ".join(
             f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in chosen.items())
-        alt += (" lowers the error most (an alternative to the gate's first choice: the"
-                " hypothesis's parameters are this trial's)")
+        most = cmp.drop >= max(t[1].drop for t in trials)
+        alt += (" lowers the error most" + ("" if most else " of those significant on their own")
+                + " (an alternative to the gate's first choice: the hypothesis's parameters are"
+                " this trial's)")
         h.parameters = dict(chosen)
     params = chosen
     p_drop = min(1.0, cmp.p_value * fitted)
@@ -332,6 +332,19 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     h.significant = bool(
         gate and p_drop < P_DROP / n_tried and cmp.drop >= MIN_DROP and consistent
     )
+
+
+def _best_trial(trials: list[tuple], p_max: float) -> tuple:
+    """The trial that lowers the validation error most among those whose drop is significant
+    on its own (p < ``p_max``, the Bonferroni level over all the trials fitted) and at least
+    :data:`MIN_DROP`; without one, the largest drop. Any choice among individually
+    Bonferroni-significant trials keeps the family's level; taking the largest drop outright
+    discards a nearly equal drop whose test has the power (suite case 1104004: the cubic
+    spring on the output's second integral lowers the error by 62 %, p = 0.02 before
+    Bonferroni, on the output itself by 61 %, p = 7e-9: its error's shorter correlation time
+    lets the rank test run)."""
+    ok = [t for t in trials if t[1].p_value < p_max and t[1].drop >= MIN_DROP]
+    return max(ok or trials, key=lambda t: t[1].drop)
 
 
 def _follow_ups(effect: str, cand: dict, fm: FittedModel) -> list[dict]:
