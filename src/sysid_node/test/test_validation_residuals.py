@@ -182,6 +182,28 @@ def test_conditional_comparison_keeps_its_level(null):
     assert alarms / draws <= 0.03
 
 
+def test_log_ratio_batch_test_sees_a_drop_where_the_loss_is_small_and_keeps_its_level():
+    """Errors whose amplitude grows 20-fold over the record (a cubic spring's error grows with
+    the input's amplitude: suite case 1104004), ringing for ~100 samples. The new model
+    removes a third of the error variance everywhere: the t-test on the batch differences
+    sees mostly the last batches; the t-test on the batch log loss ratios sees every batch
+    improve. Two equally good such models: both keep their level."""
+    rng = np.random.default_rng(11)
+    n, draws = 1200, 100
+    env = np.exp(np.linspace(0.0, 3.0, n))
+    hits = np.zeros(2)
+    alarms = np.zeros(2)
+    for _ in range(draws):
+        rest = env * _resonant(rng, n, 0.98, 0.05)
+        gone = 0.7 * env * _resonant(rng, n, 0.98, 0.05)
+        e0, e1 = (rest + gone)[:, None], rest[:, None]
+        hits += [rs.compare_errors(e0, e1, log_ratio=lr).p_value < 0.01 for lr in (False, True)]
+        a, b = ((env * _resonant(rng, n, 0.99, 0.05))[:, None] for _ in range(2))
+        alarms += [rs.compare_errors(a, b, log_ratio=lr).p_value < 0.01 for lr in (False, True)]
+    assert hits[0] < 0.1 * draws < 0.2 * draws <= hits[1], hits
+    assert np.all(alarms / draws <= 0.03), alarms
+
+
 def test_correlation_time_of_white_and_ar1():
     rng = np.random.default_rng(6)
     assert rs.correlation_time(rng.standard_normal(5000)) < 1.3

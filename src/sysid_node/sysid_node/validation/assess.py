@@ -327,7 +327,8 @@ def primary_error(
 
 def compare_primary(before: Assessment, e1: np.ndarray | None) -> rs.ErrorComparison:
     """Drop of the primary error from the ``before`` model's to ``e1`` (same kind), scaled by
-    the measurement's spread per channel (:func:`.residuals.compare_drop`)."""
+    the measurement's spread per channel (:func:`.residuals.compare_drop`; the batch t-test
+    on the log loss ratios: a trial's error falls most where the input is largest)."""
     if e1 is None:
         return rs.ErrorComparison(0.0, 1.0, 0)
-    return rs.compare_drop(before.primary_error, e1, before.y_std, RANK_BATCHES)
+    return rs.compare_drop(before.primary_error, e1, before.y_std, RANK_BATCHES, log_ratio=True)

@@ -398,12 +398,15 @@ def compare_errors(
     scale: np.ndarray | None = None,
     batches: int = 10,
     rank_batches: int = 0,
+    log_ratio: bool = False,
 ) -> ErrorComparison:
     """Diebold-Mariano comparison of two error sequences on the same samples.
 
     The loss differential d_t = sum_c (e0_ct^2 - e1_ct^2) / s_c^2 is averaged over ``batches``
     contiguous batches (batch means absorb the autocorrelation of model errors); t = mean /
-    (sd / sqrt(B)) is compared with Student's t with B - 1 degrees of freedom.
+    (sd / sqrt(B)) is compared with Student's t with B - 1 degrees of freedom. With
+    ``log_ratio`` the t-test is on the batches' log loss ratios instead
+    (:func:`_log_ratio_t`: scale-free, every batch weighs the same).
 
     With ``rank_batches`` > 0 the Wilcoxon signed-rank test on that many (shorter) batch means
     is run too and p = 2 min(p_t, p_rank) (Bonferroni). The t-test alone cannot see a drop
@@ -425,7 +428,9 @@ def compare_errors(
     d, b = _batch_means(l0 - l1, batches)
     sd = float(np.std(d, ddof=1))
     mean = float(np.mean(d))
-    if sd <= 0:
+    if log_ratio:
+        p = _log_ratio_t(l0, l1, batches)
+    elif sd <= 0:
         p = 0.0 if mean > 0 else 1.0
     else:
         p = float(stats.t.sf(mean / (sd / np.sqrt(b)), b - 1))
@@ -440,6 +445,30 @@ def compare_errors(
             )
             p = min(1.0, 2.0 * min(p, p_rank))
     return ErrorComparison(drop, p, b)
+
+
+def _log_ratio_t(l0: np.ndarray, l1: np.ndarray, batches: int) -> float:
+    """One-sided p of a t-test on r_b = log(mean_b l0 / mean_b l1) over ``batches`` contiguous
+    batches (H0: the batches' losses exchangeable, median r_b <= 0). The t-test on the
+    differences is dominated by the batches where the loss is large (a cubic spring's error
+    grows with the input's amplitude: suite case 1104004, loss 0.05..1.0 per batch, all ten
+    batches improving 1.4- to 16-fold, p = 0.013); the log ratio weighs every batch the same
+    (p = 2e-4 uncorrected). Batches of L samples, a few correlation times tau of the losses
+    each, are not independent: for exponentially decaying correlation adjacent batch means
+    correlate by about tau / (4 L), the variance of their mean is (1 + tau / (2 L)) times
+    the independent one's, and t is divided by its square root (tau the larger of the two
+    losses' own, which the difference's estimate understates on ringing errors)."""
+    m0, b = _batch_means(l0, batches)
+    m1, _ = _batch_means(l1, batches)
+    if np.any(m0 <= 0) or np.any(m1 <= 0):  # a model predicting a batch exactly: no ratio
+        return 1.0 if np.any(m0 <= 0) else 0.0
+    r = np.log(m0 / m1)
+    sd = float(np.std(r, ddof=1))
+    if sd <= 0:
+        return 0.0 if np.mean(r) > 0 else 1.0
+    tau = max(correlation_time(l0), correlation_time(l1))
+    t = float(np.mean(r)) / (sd / np.sqrt(b)) / np.sqrt(1.0 + tau / (2.0 * (l0.size // b)))
+    return float(stats.t.sf(t, b - 1))
 
 
 def correlation_time(x: np.ndarray, window: str = "sokal", max_lag: int | None = None) -> float:
@@ -542,12 +571,17 @@ def compare_predictions(
 
 
 def compare_drop(
-    e0: np.ndarray, e1: np.ndarray, scale: np.ndarray | None = None, rank_batches: int = 40
+    e0: np.ndarray,
+    e1: np.ndarray,
+    scale: np.ndarray | None = None,
+    rank_batches: int = 40,
+    log_ratio: bool = False,
 ) -> ErrorComparison:
     """Drop from error ``e0`` to ``e1`` as every trial and scan is judged: the batch-mean test
-    over records like this one (:func:`compare_errors`) and the one conditional on the two
-    predictions (:func:`compare_predictions`, sees a drop confined to where the input drives
-    the effect), combined by Bonferroni (two tests)."""
-    batch = compare_errors(e0, e1, scale, rank_batches=rank_batches)
+    over records like this one (:func:`compare_errors`, on the log loss ratios with
+    ``log_ratio``) and the one conditional on the two predictions
+    (:func:`compare_predictions`, sees a drop confined to where the input drives the effect),
+    combined by Bonferroni (two tests)."""
+    batch = compare_errors(e0, e1, scale, rank_batches=rank_batches, log_ratio=log_ratio)
     cond = compare_predictions(e0, e1, scale)
     return replace(batch, p_value=float(min(1.0, 2.0 * min(batch.p_value, cond.p_value))))
