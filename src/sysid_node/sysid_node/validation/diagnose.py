@@ -105,6 +105,13 @@ def diagnose(
         for h in hyps:
             if (h.p_value < G.P_GATE or search) and _triable(h):
                 confirm(h, ctx, spec, n_tried=len(hyps) if h.p_value >= G.P_GATE else 1)
+        if not any(h.significant for h in hyps) and current.spec.cubic_channel is None:
+            # a spring near its gate (G.NEAR_GATE: the score test's power is that of the
+            # validation rows) is tried as one of the vocabulary's searched effects
+            for h in hyps:
+                if (h.effect == "nonlinear_stiffness" and h.trial is None and not h.trial_note
+                        and G.P_GATE <= h.p_value < G.NEAR_GATE):
+                    confirm(h, ctx, spec, n_tried=len(hyps), reason="the spring's gate is near")
         _line_as_mode(hyps, lines, ctx, spec)
     return rank(hyps)
 
@@ -267,10 +274,13 @@ _REFITS = {
 }
 
 
-def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> None:
+def confirm(
+    h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1,
+    reason: str = "the model fails",
+) -> None:
     """Trial re-fit with the effect added: score, drop p-value and refined parameters.
     ``n_tried`` > 1: the gate did not fire and the trial is one of that many searched (a
-    failing model); the drop's p-value must then be under P_DROP / n_tried. With
+    failing model, or ``reason``); the drop's p-value must then be under P_DROP / n_tried. With
     alternatives (other scheduling signals, spring coordinates) the one that lowers the
     validation error most of those significant on their own is kept (:func:`_best_trial`) and
     its drop's p-value is multiplied by the number of candidates fitted (Bonferroni: the best
@@ -327,8 +337,8 @@ def confirm(h: Hypothesis, ctx: Context, spec: ModelSpec, n_tried: int = 1) -> N
     h.evidence += "; " + h.trial_note
     gate = h.p_value < G.P_GATE or n_tried > 1
     if h.p_value >= G.P_GATE:
-        h.trial_note += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
-        h.evidence += f" (tried because the model fails; drop p < {P_DROP / n_tried:.1e} asked)"
+        h.trial_note += f" (tried because {reason}; drop p < {P_DROP / n_tried:.1e} asked)"
+        h.evidence += f" (tried because {reason}; drop p < {P_DROP / n_tried:.1e} asked)"
     h.significant = bool(
         gate and p_drop < P_DROP / n_tried and cmp.drop >= MIN_DROP and consistent
     )
