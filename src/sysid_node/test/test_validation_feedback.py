@@ -204,6 +204,9 @@ def test_a_loop_outranks_a_delayed_input_that_mimics_it():
     delay = next(h for h in out.hyps if h.effect == "input_delay")
     assert h.significant and h.output_drop > delay.score
     assert out.hyps[0].effect == "feedback"
+    first = out.result()["diagnoses"][0]  # what ranked it is in the JSON
+    assert first["rank_score"] == pytest.approx(h.output_drop, abs=1e-4)
+    assert first["rank_score"] > first["score"]
 
 
 def test_a_loop_ranks_on_the_larger_of_its_input_and_output_drops():

@@ -248,11 +248,14 @@ def _print(out: Outcome, r: dict) -> None:
     what = "free-run" if r["primary"] == "free_run" else "one-step"
     print(f"scored on the {what} prediction (primary)" + (
         f": {r['primary_note']}" if r["primary_note"] else ""))
-    print("\nhypotheses (score = trial drop of the primary validation error):")
+    print("\nhypotheses (score = trial drop of the primary validation error; feedback: of the "
+          "input's one-step error):")
     for k, h in enumerate(r["diagnoses"], 1):
         mark = "*" if h["significant"] else " "
         params = json.dumps(h["parameters"])
-        print(f" {k}.{mark} {h['effect']:21s} score {h['score']:5.2f}  {params}")
+        ranked = (f" (ranked on the loop model's output drop {h['rank_score']:.2f})"
+                  if h["rank_score"] != h["score"] else "")
+        print(f" {k}.{mark} {h['effect']:21s} score {h['score']:5.2f}{ranked}  {params}")
         print(f"       {h['evidence']}")
     print(f"\nverdict: {verdict(out.before, out.hyps)['text']}")
     names = out.data.output_names

@@ -111,6 +111,7 @@ class Hypothesis:
         return {
             "effect": self.effect,
             "score": round(float(self.score), 4),
+            "rank_score": round(float(self.rank_score), 4),
             "significant": bool(self.significant),
             "p_value": float(self.p_value),
             "drop_p_value": float(self.drop_p),

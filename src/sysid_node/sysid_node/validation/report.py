@@ -180,7 +180,7 @@ def write_report(path: str, out: Outcome) -> None:
     page.table(
         ["#", "effect", "significant", "score", "parameters", "evidence"],
         (
-            [k, h["effect"], h["significant"], h["score"], _params(h["parameters"]), h["evidence"]]
+            [k, h["effect"], h["significant"], _score(h), _params(h["parameters"]), h["evidence"]]
             for k, h in enumerate(r["diagnoses"], 1)
         ),
     )
@@ -202,6 +202,13 @@ def write_report(path: str, out: Outcome) -> None:
             ),
         )
     page.write(path)
+
+
+def _score(h: dict) -> str:
+    """The trial's score, and what ranked it when that differs (a loop: its model's output drop)."""
+    if h["rank_score"] == h["score"]:
+        return f"{h['score']:.4g}"
+    return f"{h['score']:.4g} (ranked {h['rank_score']:.4g}: the loop model's output drop)"
 
 
 def _params(p: dict) -> str:
