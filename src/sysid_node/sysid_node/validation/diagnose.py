@@ -112,6 +112,14 @@ def diagnose(
                 if (h.effect == "nonlinear_stiffness" and h.trial is None and not h.trial_note
                         and G.P_GATE <= h.p_value < G.NEAR_GATE):
                     confirm(h, ctx, spec, n_tried=len(hyps), reason="the spring's gate is near")
+        mm = next(h for h in hyps if h.effect == "missing_mode")
+        if (mm.trial is None and not mm.trial_note and mm.parameters
+                and G.P_GATE <= mm.p_value < G.NEAR_MODE_GATE):
+            # a lightly damped mode rings longer than the coherence test's Welch segments
+            # (coherence is biased low when the response outlasts a segment): a mode near
+            # its gate is tried as one of the vocabulary's searched effects, whatever else
+            # fired (a ringing mode's line may pass the periodic trial)
+            confirm(mm, ctx, spec, n_tried=len(hyps), reason="the mode's gate is near")
         _line_as_mode(hyps, lines, ctx, spec)
     return rank(hyps)
 
