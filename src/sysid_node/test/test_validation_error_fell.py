@@ -24,3 +24,20 @@ def test_a_new_mode_where_the_error_fell_is_confirmed_and_its_evidence_says_so()
     assert abs(top.parameters["peak_frequency_hz"] - f_true) > 0.5 * f_true
     assert "the error fell most at" in top.evidence
     assert out.added[:1] == ["missing_mode"]
+
+
+@pytest.mark.slow
+def test_a_new_mode_where_the_coherent_error_peaks_is_confirmed():
+    """Unseen missing_mode draw 38 (multisine, 326 Hz, mode at 17.97 Hz, 4.8 % damped): the
+    multisine's error lies on its lines, the residual peak and the largest fall both on the
+    line at 15.2 Hz; the free-run error's coherent excess (its own route of the gate, p < 0.01)
+    peaks at 17.8 Hz, where the re-fit's new mode is."""
+    sc = S.draw("missing_mode", 1100038, "multisine")
+    out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
+    top = out.hyps[0]
+    assert top.effect == "missing_mode" and top.significant, top.evidence
+    f_true = sc.truth["frequency_hz"]
+    assert top.parameters["frequency_hz"] == pytest.approx(f_true, rel=0.02)
+    assert abs(top.parameters["peak_frequency_hz"] - f_true) > 0.1 * f_true
+    assert "the coherent error peaks at" in top.evidence
+    assert out.added[:1] == ["missing_mode"]
