@@ -185,7 +185,7 @@ def _delay_refit(
     chosen for the undelayed input, whose subspace realization may have traded a mode for
     the delay's phase; the delayed input's realization need not."""
     alt = _delayed_realization(ctx, spec, float(params["samples"]))
-    return _better_refit(ctx, spec, alt, effect, params)
+    return _best_refit(ctx, spec, [] if alt is None else [alt], effect, params)
 
 
 def _cleaned_refit(
@@ -206,24 +206,6 @@ def _cleaned_refit(
     second 73 % lower error; 1105027: the second recovers the 1.53 Hz mode, 6 % -> 37 %)."""
     alts = _cleaned_realizations(ctx, spec, effect, params)
     return _best_refit(ctx, spec, alts, effect, params)
-
-
-def _better_refit(
-    ctx: Context, spec: ModelSpec, alt: ModelSpec | None, effect: str, params: dict
-) -> tuple[FittedModel | None, str]:
-    """``effect`` re-fitted with ``spec`` and with ``alt`` (None: ``spec`` only); of the stable
-    re-fits the one with the lower estimation free-run error."""
-    fm, why = _refit(ctx, spec, effect, params)
-    if alt is None:
-        return fm, why
-    fm2, why2 = _refit(ctx, alt, effect, params)
-    if fm2 is None:
-        return (fm, why) if fm is not None else (None, why2)
-    if fm is None or estimation_cost(fm2, ctx.data, ctx.split) < estimation_cost(
-        fm, ctx.data, ctx.split
-    ):
-        return fm2, ""
-    return fm, why
 
 
 def _best_refit(
