@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import signal
 from sysid_node.validation import diagnose as D
 from sysid_node.validation import gates as G
 from sysid_node.validation import models as M
 from sysid_node.validation import suite as S
+from sysid_node.validation.data import ValidationData
 from sysid_node.validation.workflow import Options, run_validation
 
 #: the draws as the suite made them before round 32 (sized against the measurement noise)
@@ -164,3 +166,19 @@ def test_no_delay_is_fitted_in_full_when_the_cheap_scan_prefers_none(monkeypatch
     assert h.p_value < G.P_GATE and h.trial_note == "no delay lowers the estimation error"
     assert len(refits) == 0
     assert out.added == ["sensor_bias"]
+
+
+def test_a_first_order_model_with_a_delayed_input_is_diagnosed_not_crashed():
+    """An order-1 baseline (one real pole, what the default order selection picks for some
+    records): the delay scan's second form realizes twice the order and keeps the dominant
+    modal blocks that fit, and a complex pair does not fit order 1. That form is skipped
+    (it raised ValueError out of validate before)."""
+    rng = np.random.default_rng(3)
+    n, fs, lag = 4000, 200.0, 3
+    u = rng.standard_normal(n)
+    x = signal.lfilter([0.0, 0.5], [1.0, -0.9], np.concatenate([np.zeros(lag), u[:-lag]]))
+    y = x + 0.05 * np.std(x) * rng.standard_normal(n)
+    data = ValidationData(t=np.arange(n) / fs, y=y[:, None], u=u[:, None], fs=fs)
+    out = run_validation(data, Options(order=1, auto=True))
+    assert out.added[:1] == ["input_delay"]
+    assert out.error_drop > 0.5

@@ -875,6 +875,8 @@ def dominant_modes(
         if kinds[k] <= room:
             keep.append(k)
             room -= kinds[k]
+    if not keep:  # an odd order below every block: order 1 against complex pairs only
+        raise ValidationError(f"no modal block of the order-{m.order} realization fits {order}")
     idx = np.concatenate([np.arange(offsets[k], offsets[k] + kinds[k]) for k in sorted(keep)])
     ar, cr = a[np.ix_(idx, idx)], c[:, idx]
     q, s = (ti @ m.Q @ ti.T)[np.ix_(idx, idx)], (ti @ m.S)[idx]
