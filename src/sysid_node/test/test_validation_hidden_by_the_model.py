@@ -72,17 +72,21 @@ def test_the_delay_trial_realizes_the_delayed_input_as_the_baseline_would(monkey
 
 def test_a_mode_longer_than_the_interleaved_blocks_is_found_on_the_whole_record():
     """Draw 14 as drawn before round 32 (Schroeder multisine, 538 Hz, 4.4 x the measurement
-    noise; the baseline has 4.09 Hz and a 72 %-damped pair for modes at 2.75, 3.59 and
-    4.09 Hz): the validation blocks last 0.3 s, one period of the lost modes; the coherence of
-    the whole record's free-run error finds them, and the mode's trial beats the cubic
-    spring's."""
+    noise; modes at 2.75 (the missing one), 3.59 and 4.09 Hz): the validation blocks last
+    0.3 s, one period of the lost mode; the coherence of the whole record's free-run error
+    finds it, and the mode's trial beats the cubic spring's. (Before the baseline's refit was
+    refined again, the baseline also had a 72 %-damped pair for the 3.59 Hz mode and the
+    addition lowered the error by 81 %; now both structural modes are in it: 35 %.)"""
     sc = S.draw("missing_mode", 1100014, "multisine", size_against="measurement_noise")
     out = run_validation(S._data(sc), Options(order=sc.nominal_order, auto=True))
     assert out.split.mode == "interleaved"
     top = out.hyps[0]
     assert top.effect == "missing_mode" and top.significant, top.evidence
     assert "of the whole record" in top.evidence
-    assert out.added[:1] == ["missing_mode"] and out.error_drop > 0.6
+    assert out.added[:1] == ["missing_mode"] and out.error_drop > 0.0
+    got = np.array([md.frequency_hz for md in out.current.modes()])
+    for f in [*(f for f, _ in sc.structure.modes()), sc.truth["frequency_hz"]]:
+        assert np.min(np.abs(got - f)) <= 0.05 * f, (f, got)  # the gate's NEAR_MODE
 
 
 

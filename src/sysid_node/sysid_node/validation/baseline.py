@@ -26,7 +26,10 @@ order are all refitted and the one with the least estimation free-run error repl
 held-out choice when it is clearly lower (beyond 5 % and significantly; same order, same
 objective: no choice on the validation samples). On short interleaved segments (a
 sweep) the held-out tail ranks realizations before their refinement poorly; the refit from the
-held-out choice can stop at a minimum several times worse than another start's. Only when
+held-out choice can stop at a minimum several times worse than another start's. The chosen
+refit is then refined once more and, when it has two real poles or more, restarted with a
+complex pair at its error's power peak in place of two of them (:func:`_further_refit`: the
+refinement moves complex pairs only), kept by the same bar. Only when
 every candidate is unstable are the unstable poles reflected into the unit circle
 (|z| -> 1/|z|, same frequency) and B, D refitted, and the report says so.
 
@@ -41,15 +44,20 @@ The line stays in the baseline's error, where the periodic gate and trial see it
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TypeVar
 
 import numpy as np
+from scipy import signal
 
 from ..core.realization import kalman_gain
 from . import residuals as rs
 from .augment import ModelSpec, rotating_signals
 from .data import ValidationData, ValidationError
 from .models import (
+    HINT_DAMPING,
     FittedModel,
+    _fit_simulation,
+    _to_basis,
     decimated_projection,
     dominant_modes,
     fit,
@@ -57,7 +65,14 @@ from .models import (
     modes_of,
     shift,
 )
-from .simulation import LinearDynamics, fit_output_error, simulate_linear, spectral_radius
+from .simulation import (
+    LinearDynamics,
+    block_matrix,
+    fit_output_error,
+    real_modal_basis,
+    simulate_linear,
+    spectral_radius,
+)
 from .split import Split
 
 SELECTION_FRACTION = 0.25  # held-out tail of the estimation part
@@ -74,6 +89,9 @@ MAX_DECIMATION = 8  # largest factor the candidates are realized at (see decimat
 STARTS = 4
 #: harmonics of a rotating speed taken out with a line at one of them (gates.harmonic_test's)
 ROTOR_HARMONICS = (1, 2, 3, 4)
+
+
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -385,6 +403,8 @@ def select_baseline(
                      f"held-out choice's ({starts[0][0].block_rows} block rows"
                      f"{_how(starts[0][0])}): {len(starts)} starts of this order refitted")
         if criterion == "free_run":
+            fm, why = _further_refit(fm, data, split)
+            note += why
             fm, why = without_lines(fm, data, split)
             note += why
         return fm, BaselineChoice(c.block_rows, c.order, criterion, cands, n_fit, note, n_sel)
@@ -496,8 +516,8 @@ def _clearly_lower(
 
 
 def _least_estimation_error(
-    starts: list[tuple[Candidate, FittedModel]], data: ValidationData, split: Split
-) -> tuple[Candidate, FittedModel]:
+    starts: list[tuple[_T, FittedModel]], data: ValidationData, split: Split
+) -> tuple[_T, FittedModel]:
     """The first start (the held-out choice) unless another start's refit has a clearly lower
     free-run error on the estimation samples: beyond :data:`NEAR_BEST` and significantly
     (p < :data:`P_WORSE`, the bars the held-out selection uses; the drop test every trial is
@@ -521,6 +541,110 @@ def _least_estimation_error(
         return starts[0]
     p = rs.compare_drop(errs[0], errs[k], scale).p_value
     return starts[k] if p < P_WORSE else starts[0]
+
+
+def _further_refit(
+    fm: FittedModel, data: ValidationData, split: Split
+) -> tuple[FittedModel, str]:
+    """Two more starts of the output-error refinement from the chosen refit ``fm``: ``fm``
+    refined again (the refinement stops after :data:`.models.REFINE_EVALUATIONS`; a mode's
+    damping may not have settled) and, when ``fm`` has two real poles or more, the two of least
+    output power replaced by a complex pair at the estimation free-run error's power peak away
+    from its modes (:func:`_paired`: the refinement moves complex pairs only, a mode the
+    realization split into real poles is never reached). The one with the least estimation
+    free-run error replaces ``fm`` when it is clearly lower than ``fm``'s (the starts' bar,
+    :func:`_least_estimation_error`)."""
+    if not is_plain(fm) or fm.model is None or fm.spec.harmonics:
+        return fm, ""
+    tried: list[tuple[str, FittedModel]] = [("", fm)]
+    for make in (_again, _paired):
+        try:
+            how, alt = make(fm, data, split)
+        except (ValidationError, np.linalg.LinAlgError, ValueError):
+            continue
+        if alt is not None and alt.stable(free_run=True):
+            tried.append((how, alt))
+    how, out = _least_estimation_error(tried, data, split)
+    if out is fm:
+        return fm, ""
+    return out, f"; {how} reaches a clearly lower estimation free-run error"
+
+
+def _again(fm: FittedModel, data: ValidationData, split: Split) -> tuple[str, FittedModel]:
+    """``fm``'s poles refined once more by output error (a new trust region)."""
+    alt = FittedModel(fm.spec, fm.order, model=fm.model, n_outputs=fm.n_outputs)
+    _fit_simulation(alt, data, None, split)
+    return "the refit refined again (its refinement had not converged)", alt
+
+
+def _paired(
+    fm: FittedModel, data: ValidationData, split: Split
+) -> tuple[str, FittedModel | None]:
+    """``fm`` with the two real poles of least output power (B by output error) replaced by a
+    complex pair at :func:`_error_peak`, damping :data:`.models.HINT_DAMPING` (the
+    missing-mode trial's start for a mode without evidence of its damping), the mode shape
+    the two poles' columns of C in the modal basis; refined by output error. None when ``fm``
+    has fewer than two real poles or its error no peak."""
+    m = fm.model
+    t, eig, kinds = real_modal_basis(m.A)
+    real = [k for k, kind in enumerate(kinds) if kind == 1]
+    f = _error_peak(fm, data, split) if len(real) >= 2 else float("nan")
+    if not np.isfinite(f):
+        return "", None
+    offsets = np.cumsum([0, *kinds])[:-1]
+    a, c = block_matrix(eig, kinds), m.C @ t
+    dyn = LinearDynamics.build(a, c, data.n)
+    u = shift(data.u, fm.spec.delay)
+    oe = fit_output_error(dyn, data.y, u, split.est)
+    power = []
+    for k in real:
+        sub = LinearDynamics(a[[offsets[k]]][:, [offsets[k]]], c[:, [offsets[k]]],
+                             dyn.kernel[:, :, [offsets[k]]])
+        power.append(float(np.sum(sub.simulate(oe.B[[offsets[k]]], u)[split.est] ** 2)))
+    drop = [real[k] for k in np.argsort(power)[:2]]
+    keep = [k for k in range(len(kinds)) if k not in drop]
+    w = 2 * np.pi * f
+    z = HINT_DAMPING
+    p = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / data.fs)
+    new_eig = np.array([eig[k] for k in keep] + [p])
+    new_kinds = [kinds[k] for k in keep] + [2]
+    idx = np.concatenate(
+        [np.arange(offsets[k], offsets[k] + kinds[k]) for k in keep] + [offsets[drop]]
+    )
+    tp = t[:, idx]
+    an = block_matrix(new_eig, new_kinds)
+    alt = FittedModel(fm.spec, fm.order, n_outputs=fm.n_outputs)
+    alt.model = _to_basis(replace(m, B=m.B), an, m.C @ tp, tp)
+    _fit_simulation(alt, data, None, split)
+    return f"a complex pair started at {f:.4g} Hz in place of two real poles", alt
+
+
+def _error_peak(fm: FittedModel, data: ValidationData, split: Split) -> float:
+    """Frequency [Hz] where the estimation free-run error's power (Welch, averaged over the
+    estimation segments and channels scaled by their variance) peaks more than 5 % away from
+    every mode of ``fm`` (the missing-mode gate's NEAR_MODE); NaN without one."""
+    ys = fm.simulate(data)
+    if ys is None:
+        return float("nan")
+    e = (data.y - ys) / np.maximum(np.std(data.y[split.est], axis=0), 1e-300)
+    segs = split.est_segments
+    short = min(b - a for a, b in segs)
+    nper = 1 << int(np.floor(np.log2(max(min(short, len(split.est) // 4), 16))))
+    total = None
+    for a, b in segs:
+        if b - a < nper:
+            continue
+        f, pee = signal.welch(e[a:b], fs=data.fs, nperseg=nper, axis=0)
+        total = pee.sum(axis=1) * (b - a) if total is None else total + pee.sum(axis=1) * (b - a)
+    if total is None or not np.all(np.isfinite(total)):
+        return float("nan")
+    freqs = np.array([md.frequency_hz for md in fm.modes()] or [np.inf])
+    ok = (f > 1.5 * data.fs / nper) & (f < 0.45 * data.fs) & np.all(
+        np.abs(f[:, None] - freqs[None, :]) > 0.05 * freqs[None, :], axis=1
+    )
+    if not ok.any():
+        return float("nan")
+    return float(f[int(np.argmax(np.where(ok, total, -1.0)))])
 
 
 def _fallback(cands: list[Candidate], order: int | None, spec: ModelSpec) -> Candidate:
