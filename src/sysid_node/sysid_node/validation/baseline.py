@@ -8,7 +8,9 @@ D solved on the simulation error (:mod:`.simulation`); without one (output-only)
 input is not exogenous (closed loop), it is the one-step prediction error. The smallest order
 (then horizon) whose error is within 5 % of the best one's and not significantly larger
 (Diebold-Mariano, :func:`.residuals.compare_errors`) wins: the best linear level without the
-needless states that would absorb a missing effect.
+needless states that would absorb a missing effect. States that stand in for an input delay
+(a lower order fitted to the delayed input predicts as well, :func:`_delay_parsimony`) are
+needless in that sense: the lower order is kept and the delay left to the diagnosis.
 
 With an input (free run), every horizon is also realized from the fit samples decimated by 2,
 4 and 8 (:func:`.models.decimated_projection`; long segments only): A and C at the lower
@@ -43,6 +45,7 @@ The line stays in the baseline's error, where the periodic gate and trial see it
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
@@ -108,6 +111,7 @@ class Candidate:
     one_err: np.ndarray | None = field(default=None, repr=False)
     reduce_from: int = 0  # realized at this order, its dominant modes kept (0: directly)
     decimate: int = 1  # realized from the record decimated by this factor (1: full rate)
+    note: str = ""  # why it was chosen over a lower-error order (:func:`_delay_parsimony`)
 
     def score(self, criterion: str) -> float:
         """Held-out NRMSE of the criterion's prediction (inf when it is unbounded)."""
@@ -200,11 +204,14 @@ def _score_orders(
     criterion: str,
     reduce: bool = False,
     factor: int = 1,
+    delay: int = 0,
+    until: Callable[[Candidate], bool] | None = None,
 ) -> list[Candidate]:
-    """Realize every order from one projection of the fit samples (decimated by ``factor``),
-    score on the held-out."""
+    """Realize every order from one projection of the fit samples (decimated by ``factor``;
+    the input delayed by ``delay`` samples), score on the held-out; stop after the first
+    candidate ``until`` accepts."""
     n_sim = int(inner.val[-1]) + 1  # nothing after the last held-out sample is needed
-    y, u = data.y[:n_sim], data.u[:n_sim]
+    y, u = data.y[:n_sim], shift(data.u[:n_sim], delay)
     dp = decimated_projection(y, u, data.fs, factor, i, inner.est_segments)
     out: list[Candidate] = []
     best, best_n = np.inf, 0
@@ -244,6 +251,8 @@ def _score_orders(
         ok = stable and np.isfinite(one)
         c = Candidate(i, n, free, one, ok, reason, free_err, one_err, decimate=factor)
         out.append(c)
+        if until is not None and until(c):
+            break
         s = free if criterion == "free_run" else one
         if np.isfinite(s) and s < best:
             best, best_n = s, n
@@ -344,7 +353,61 @@ def rank_realizations(
             if k == 1:
                 raise  # decimated: the segments may be too short for it (none is realized)
     scale = np.std(data.y[inner.val], axis=0)
-    return cands, _choose(cands, criterion, scale), inner.n_est, inner.n_val
+    ranked = _choose(cands, criterion, scale)
+    if order is None and criterion == "free_run" and ranked:
+        ranked = _delay_parsimony(data, inner, cands, ranked, scale)
+    return cands, ranked, inner.n_est, inner.n_val
+
+
+def _delay_parsimony(
+    data: ValidationData,
+    inner: Split,
+    cands: list[Candidate],
+    ranked: list[Candidate],
+    scale: np.ndarray,
+) -> list[Candidate]:
+    """The ranking with a lower order first when the chosen order's extra states stand in for
+    an input delay: an order-n realization from the input delayed by d samples, n + d at most
+    the chosen order n* (a d-sample delay is d states: the delayed model is no larger), whose
+    held-out free-run error is not worse than n*'s (:func:`_worse`). A delay's phase lag
+    grows with frequency; a linear model without it buys that lag with poles (lightly damped
+    ones above the structure's band after the output-error refinement), so the held-out error
+    falls with the order and the parsimonious choice lands far above the structure's order.
+    The smallest such n is kept, realized from the undelayed input: the delay stays in its
+    error, where the input_delay gate and trial see it. Scanned at the chosen horizon, full
+    rate (a decimated or reduced choice is kept as it is)."""
+    first = ranked[0]
+    if first.decimate > 1 or first.reduce_from or first.order < 2:
+        return ranked
+    best: tuple[int, int] | None = None  # (order, delay)
+    bound = first.order  # orders below it only
+
+    def ok(c: Candidate) -> bool:
+        return np.isfinite(c.score("free_run")) and not _worse(c, first, "free_run", scale)
+
+    for d in range(1, first.order):
+        orders = list(range(1, min(bound, first.order - d + 1)))
+        if not orders:
+            break
+        found = _score_orders(data, inner, first.block_rows, orders, "free_run", delay=d, until=ok)
+        if found and ok(found[-1]):
+            best, bound = (found[-1].order, d), found[-1].order
+    if best is None:
+        return ranked
+    n, d = best
+    same = [c for c in cands if c.order == n and c.decimate == 1 and not c.reduce_from
+            and np.isfinite(c.score("free_run"))]
+    if not same:
+        return ranked
+    pick = min(same, key=lambda c: c.score("free_run"))
+    pick.note = (
+        f"; order {first.order} ({100 * first.score('free_run'):.1f} %) predicts the held-out "
+        f"part no better than order {n} with the input delayed {d} sample{'s' * (d > 1)}: its "
+        f"extra states stand in for a delay, so order {n} is kept and the delay left to the "
+        "diagnosis"
+    )
+    rest = sorted((c for c in ranked if c is not pick), key=lambda c: c.score("free_run"))
+    return [pick, *rest]
 
 
 def _score_horizons(
@@ -667,7 +730,7 @@ def _note(c: Candidate, ranked: list[Candidate], criterion: str, order: int | No
     return (
         f"order {c.order} ({how}{red}), block rows {c.block_rows}: held-out {what} NRMSE "
         f"{100 * c.score(criterion):.1f} % (best candidate {100 * best.score(criterion):.1f} % "
-        f"at order {best.order}, block rows {best.block_rows})"
+        f"at order {best.order}, block rows {best.block_rows})" + c.note
     )
 
 
