@@ -57,5 +57,5 @@ def test_the_baseline_is_a_converged_minimum_of_its_refinement():
     data = S._data(sc)
     split, fm, choice, a = baseline_assessment(data, Options(order=sc.nominal_order))
     again = M.FittedModel(fm.spec, fm.order, model=fm.model, n_outputs=fm.n_outputs)
-    M._fit_simulation(again, data, None, split)
+    M.fit_simulation(again, data, None, split)
     assert not _clearly_lower(fm, again, data, split), choice.note

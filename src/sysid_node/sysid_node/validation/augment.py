@@ -78,7 +78,7 @@ class ModelSpec:
     cubic_integrals: int = 0  # the spring's coordinate: output (0), its integral (1) or double (2)
     cubic_input: int = 0  # the input the spring force acts with (Duffing: where the input acts)
     #: how the spring's force enters the discrete model: "best" (the "input" or "free" form
-    #: with the lower estimation error, see models._fit_simulation) or "input" only
+    #: with the lower estimation error, see models.fit_simulation) or "input" only
     cubic_force: str = "best"
     feedback: bool = False
     feedback_lags: int = 5

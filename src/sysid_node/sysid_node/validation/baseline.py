@@ -59,11 +59,11 @@ from .data import ValidationData, ValidationError
 from .models import (
     HINT_DAMPING,
     FittedModel,
-    _fit_simulation,
     _to_basis,
     decimated_projection,
     dominant_modes,
     fit,
+    fit_simulation,
     is_plain,
     modes_of,
     shift,
@@ -636,7 +636,7 @@ def _further_refit(
 def _again(fm: FittedModel, data: ValidationData, split: Split) -> tuple[str, FittedModel]:
     """``fm``'s poles refined once more by output error (a new trust region)."""
     alt = FittedModel(fm.spec, fm.order, model=fm.model, n_outputs=fm.n_outputs)
-    _fit_simulation(alt, data, None, split)
+    fit_simulation(alt, data, None, split)
     return "the refit refined again (its refinement had not converged)", alt
 
 
@@ -678,7 +678,7 @@ def _paired(
     an = block_matrix(new_eig, new_kinds)
     alt = FittedModel(fm.spec, fm.order, n_outputs=fm.n_outputs)
     alt.model = _to_basis(replace(m, B=m.B), an, m.C @ tp, tp)
-    _fit_simulation(alt, data, None, split)
+    fit_simulation(alt, data, None, split)
     return f"a complex pair started at {f:.4g} Hz in place of two real poles", alt
 
 

@@ -530,10 +530,10 @@ def fit(
     ue = fm.one_step_inputs(data)
     _fit_core(fm, data, yc, ue, split, order)
     if data.n_inputs and spec.focus == "free_run" and not spec.feedback and not fm.locals:
-        _fit_simulation(fm, data, phi, split)
+        fit_simulation(fm, data, phi, split)
         alt = _hinted(fm, like, data)
         if alt is not None:
-            _fit_simulation(alt, data, phi, split)
+            fit_simulation(alt, data, phi, split)
             if estimation_cost(alt, data, split) < estimation_cost(fm, data, split):
                 return alt
     elif phi is not None:
@@ -719,7 +719,7 @@ def _fit_lpv(
     fm.order = local[0][1].order
 
 
-def _fit_simulation(
+def fit_simulation(
     fm: FittedModel,
     data: ValidationData,
     phi: np.ndarray | None,
