@@ -419,3 +419,27 @@ def test_a_start_up_pole_that_returns_after_lost_is_judged_as_a_new_one():
             modes.append(_pole(23.0, 1.0, orders=2))
         out = tr.update(modes, t)
     assert {round(m.frequency_hz): m.status for m in out} == {10: "tracked", 23: "tentative"}
+
+
+def test_an_established_faint_pole_that_wanders_beyond_its_own_sd_is_not_tracked():
+    """An established pole with 0.5 % of the strongest contribution that then recurs in 7 of 10
+    updates, its estimates scattering 15 times their own standard deviation, is tentative (a
+    noise pole, unseen random draws 103 and 137); as weak a steady one, a wandering one with 10
+    %, and a wandering weak one found in every update stay tracked."""
+    tr = ModeTracker(confirm_hits=3, lost_timeout_s=1.0)
+
+    def pole(f: float, contribution: float) -> ModalParameters:
+        return ModalParameters(f, 0.02, frequency_std_hz=0.02, contribution=contribution,
+                               shape=np.array([1.0, 0.5], complex))
+
+    for k in range(60):
+        t = 0.1 * k
+        late = t >= 2.0
+        jitter = 0.3 * (-1) ** k if late else 0.0
+        seen = not late or k % 10 not in (1, 4, 7)
+        modes = [pole(10.0, 100.0), pole(40.0 + jitter, 0.5)]
+        if seen:
+            modes += [pole(17.0 + jitter, 0.5), pole(23.0, 0.5), pole(31.0 + jitter, 10.0)]
+        out = tr.update(modes, t)
+    assert {round(m.frequency_hz): m.status for m in out} == {
+        10: "tracked", 17: "tentative", 23: "tracked", 31: "tracked", 40: "tracked"}
