@@ -684,21 +684,17 @@ def _fall_at_new_mode(
     while the mode rang, so the single bin where the error fell most may lie beyond the bin
     tolerance of the mode (a 25.7 Hz mode, 1.5 % damped, whose fall peaked at 24.2 Hz); its
     band still holds more of the fall than any other mode's."""
-    e0 = ctx.assessment.primary_error
-    if e1 is None:
-        e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
-    if e1 is None or len(e1) != len(e0) or not np.all(np.isfinite(e1)):
+    spectra = _error_fall(ctx, fm, e1)
+    if spectra is None:
         return None
-    s0 = rs.residual_spectrum(e0, ctx.data.fs)
-    s1 = rs.residual_spectrum(e1, ctx.data.fs)
-    fall = (s0.psd - s1.psd).sum(axis=1)
+    f, fall, res = spectra
     total = float(np.sum(np.maximum(fall, 0.0)))
     if total <= 0.0:
         return None
     shares = []
     for md in fm.modes():
-        half = 2.0 * md.damping_ratio * md.frequency_hz + 1.5 * s0.resolution_hz
-        shares.append(float(np.sum(fall[np.abs(s0.f - md.frequency_hz) <= half])) / total)
+        half = 2.0 * md.damping_ratio * md.frequency_hz + 1.5 * res
+        shares.append(float(np.sum(fall[np.abs(f - md.frequency_hz) <= half])) / total)
     k = int(np.argmax(shares))
     md = fm.modes()[k]
     if shares[k] <= 0.0 or not any(md is m for m in new):
@@ -715,15 +711,25 @@ def error_fell_at(
     (Welch spectra of both errors, summed over channels) and the spectra's resolution [Hz]
     (NaN, NaN: the trial's free run diverges). ``e1``: the trial's primary validation error
     when the caller has it (the confirmation computed it; not simulated again)."""
+    spectra = _error_fall(ctx, fm, e1)
+    if spectra is None:
+        return float("nan"), float("nan")
+    f, fall, res = spectra
+    return float(f[int(np.argmax(fall))]), res
+
+
+def _error_fall(ctx: Context, fm: FittedModel, e1: np.ndarray | None = None):
+    """(frequencies [Hz], the drop of the primary validation error's power from the model to
+    the trial ``fm`` there (Welch spectra, summed over channels), resolution [Hz]); None when
+    the trial's free run diverges."""
     e0 = ctx.assessment.primary_error
     if e1 is None:
         e1 = primary_error(fm, ctx.data, ctx.split, ctx.assessment.primary)
     if e1 is None or len(e1) != len(e0) or not np.all(np.isfinite(e1)):
-        return float("nan"), float("nan")
+        return None
     s0 = rs.residual_spectrum(e0, ctx.data.fs)
     s1 = rs.residual_spectrum(e1, ctx.data.fs)
-    k = int(np.argmax((s0.psd - s1.psd).sum(axis=1)))
-    return float(s0.f[k]), s0.resolution_hz
+    return s0.f, (s0.psd - s1.psd).sum(axis=1), s0.resolution_hz
 
 
 # ------------------------------------------------------------------ verdict
