@@ -60,7 +60,9 @@ from .models import (
     HINT_DAMPING,
     FittedModel,
     _to_basis,
+    block_power,
     decimated_projection,
+    discrete_pole,
     dominant_modes,
     fit,
     fit_simulation,
@@ -655,20 +657,12 @@ def _paired(
     if not np.isfinite(f):
         return "", None
     offsets = np.cumsum([0, *kinds])[:-1]
-    a, c = block_matrix(eig, kinds), m.C @ t
-    dyn = LinearDynamics.build(a, c, data.n)
-    u = shift(data.u, fm.spec.delay)
-    oe = fit_output_error(dyn, data.y, u, split.est)
-    power = []
-    for k in real:
-        sub = LinearDynamics(a[[offsets[k]]][:, [offsets[k]]], c[:, [offsets[k]]],
-                             dyn.kernel[:, :, [offsets[k]]])
-        power.append(float(np.sum(sub.simulate(oe.B[[offsets[k]]], u)[split.est] ** 2)))
+    a = block_matrix(eig, kinds)
+    every, _ = block_power(a, m.C @ t, kinds, data.y, shift(data.u, fm.spec.delay), split.est)
+    power = [every[k] for k in real]
     drop = [real[k] for k in np.argsort(power)[:2]]
     keep = [k for k in range(len(kinds)) if k not in drop]
-    w = 2 * np.pi * f
-    z = HINT_DAMPING
-    p = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / data.fs)
+    p = discrete_pole(f, HINT_DAMPING, data.fs)
     new_eig = np.array([eig[k] for k in keep] + [p])
     new_kinds = [kinds[k] for k in keep] + [2]
     idx = np.concatenate(

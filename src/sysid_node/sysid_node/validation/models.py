@@ -35,6 +35,7 @@ from .lpv_affine import AffineModal, fit_affine
 from .residuals import lstsq
 from .simulation import (
     LinearDynamics,
+    OutputErrorFit,
     block_matrix,
     cubic_coordinate,
     fit_output_error,
@@ -562,8 +563,7 @@ def _hinted(fm: FittedModel, like: FittedModel | None, data: ValidationData):
     shape = np.maximum(np.std(data.y, axis=0), 1e-12)[:, None] * np.array([[1.0, 0.0]])
     for f, z in sp.mode_hints:
         z = HINT_DAMPING if not np.isfinite(z) else float(np.clip(z, *HINT_DAMPING_RANGE))
-        w = 2 * np.pi * min(f, 0.45 * data.fs)
-        p = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / data.fs)
+        p = discrete_pole(min(f, 0.45 * data.fs), z, data.fs)
         blk = np.array([[p.real, p.imag], [-p.imag, p.real]])
         a = np.block([[a, np.zeros((a.shape[0], 2))], [np.zeros((2, a.shape[0])), blk]])
         c = np.hstack([c, shape])
@@ -849,6 +849,30 @@ def modes_of(a: np.ndarray, fs: float) -> list[ModalParameters]:
     return sorted(out, key=lambda md: md.frequency_hz)
 
 
+def block_power(
+    a: np.ndarray, c: np.ndarray, kinds: list[int], y: np.ndarray, u: np.ndarray,
+    rows: np.ndarray,
+) -> tuple[list[float], OutputErrorFit]:
+    """Output power on ``rows`` of each modal block of the block-diagonal ``a`` (sizes
+    ``kinds``: 2 a complex pair, 1 a real pole) in the free run from ``u``, with B, D and the
+    initial state by output error on ``rows`` (returned too)."""
+    dyn = LinearDynamics.build(a, c, y.shape[0])
+    oe = fit_output_error(dyn, y, u, rows)
+    offsets = np.cumsum([0, *kinds])[:-1]
+    power = []
+    for k, kind in enumerate(kinds):
+        blk = slice(offsets[k], offsets[k] + kind)
+        sub = LinearDynamics(a[blk, blk], c[:, blk], dyn.kernel[:, :, blk])
+        power.append(float(np.sum(sub.simulate(oe.B[blk], u)[rows] ** 2)))
+    return power, oe
+
+
+def discrete_pole(f: float, z: float, fs: float) -> complex:
+    """The discrete pole exp(s / fs) of a mode of frequency ``f`` [Hz] and damping ``z``."""
+    w = 2 * np.pi * f
+    return complex(np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / fs))
+
+
 def dominant_modes(
     m: IdentifiedModel, y: np.ndarray, u: np.ndarray, rows: np.ndarray, order: int
 ) -> IdentifiedModel:
@@ -861,15 +885,8 @@ def dominant_modes(
     eig = np.where(r >= 1.0, eig / r * 0.999, eig)  # an unstable pole: pulled inside
     ti = np.linalg.inv(t)
     a, c = block_matrix(eig, kinds), m.C @ t
-    dyn = LinearDynamics.build(a, c, y.shape[0])
-    oe = fit_output_error(dyn, y, u, rows)
+    energy, oe = block_power(a, c, kinds, y, u, rows)
     offsets = np.cumsum([0, *kinds])[:-1]
-    energy = []
-    for k, kind in enumerate(kinds):
-        blk = slice(offsets[k], offsets[k] + kind)
-        sub = LinearDynamics(a[blk, blk], c[:, blk], dyn.kernel[:, :, blk])
-        yk = sub.simulate(oe.B[blk], u)[rows]
-        energy.append(float(np.sum(yk**2)))
     keep, room = [], order
     for k in np.argsort(energy)[::-1]:
         if kinds[k] <= room:
